@@ -1,0 +1,65 @@
+#include "conversions.hpp"
+
+#include <cmath>
+#include <sstream>
+
+namespace dcslam::bindings {
+
+std::string shape_string(const py::array& array) {
+  std::ostringstream out;
+  out << "(";
+  for (py::ssize_t i = 0; i < array.ndim(); ++i) {
+    if (i) out << ", ";
+    out << array.shape(i);
+  }
+  if (array.ndim() == 1) out << ",";
+  out << ")";
+  return out.str();
+}
+
+DoubleArray as_double_array(const py::handle& obj, const std::string& where) {
+  // ensure() returns a null handle (and clears the Python error) when it cannot convert.
+  DoubleArray array = obj.is_none() ? DoubleArray() : DoubleArray::ensure(obj);
+  if (!array) {
+    throw py::value_error(where + ": expected an array of numbers, got " +
+                          std::string(py::str(py::type::of(obj).attr("__name__"))));
+  }
+  return array;
+}
+
+void require_finite(const DoubleArray& array, const std::string& where) {
+  const double* data = array.data();
+  for (py::ssize_t i = 0; i < array.size(); ++i) {
+    if (!std::isfinite(data[i])) {
+      throw py::value_error(where + ": contains a non-finite value (NaN or inf)");
+    }
+  }
+}
+
+Eigen::VectorXd as_vector(const py::handle& obj, Eigen::Index size, const std::string& where) {
+  DoubleArray array = as_double_array(obj, where);
+  if (array.ndim() != 1 || array.shape(0) != size) {
+    throw py::value_error(where + ": expected shape (" + std::to_string(size) + ",), got " +
+                          shape_string(array));
+  }
+  require_finite(array, where);
+  return Eigen::Map<const Eigen::VectorXd>(array.data(), size);
+}
+
+Eigen::MatrixXd as_matrix(const py::handle& obj, Eigen::Index rows, Eigen::Index cols,
+                          const std::string& where) {
+  DoubleArray array = as_double_array(obj, where);
+  const bool ok = array.ndim() == 2 && (rows < 0 || array.shape(0) == rows) &&
+                  (cols < 0 || array.shape(1) == cols);
+  if (!ok) {
+    const std::string r = rows < 0 ? "m" : std::to_string(rows);
+    const std::string c = cols < 0 ? "k" : std::to_string(cols);
+    throw py::value_error(where + ": expected shape (" + r + ", " + c + "), got " +
+                          shape_string(array));
+  }
+  require_finite(array, where);
+  using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  return Eigen::Map<const RowMajor>(array.data(), array.shape(0), array.shape(1));
+}
+
+}  // namespace dcslam::bindings

@@ -1,0 +1,33 @@
+#pragma once
+// Checked conversions from Python objects to Eigen values. Every failure raises ValueError
+// with a message that names the function and the argument, so users learn which input was
+// wrong and why (shape, dtype, non-finite values).
+#include <string>
+
+#include <Eigen/Core>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+
+namespace dcslam::bindings {
+
+namespace py = pybind11;
+
+using DoubleArray = py::array_t<double, py::array::c_style | py::array::forcecast>;
+
+// "(3,)" or "(4, 2)" for messages.
+std::string shape_string(const py::array& array);
+
+// Converts `obj` to a C-contiguous float64 array, or raises ValueError naming `where`.
+DoubleArray as_double_array(const py::handle& obj, const std::string& where);
+
+// Requires every element to be finite.
+void require_finite(const DoubleArray& array, const std::string& where);
+
+// A finite vector of exactly `size` elements (shape (size,)).
+Eigen::VectorXd as_vector(const py::handle& obj, Eigen::Index size, const std::string& where);
+
+// A finite matrix of exactly rows x cols (rows or cols may be -1 for "any").
+Eigen::MatrixXd as_matrix(const py::handle& obj, Eigen::Index rows, Eigen::Index cols,
+                          const std::string& where);
+
+}  // namespace dcslam::bindings

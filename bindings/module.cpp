@@ -1,0 +1,19 @@
+// The private compiled module dcslam._core. Each area of the library binds itself in its own
+// file through one define_<area>() function.
+#include <pybind11/pybind11.h>
+
+namespace py = pybind11;
+
+namespace dcslam::bindings {
+void define_errors(py::module_& m);
+void define_geometry(py::module_& m);
+void define_config(py::module_& m);
+}  // namespace dcslam::bindings
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "dcslam's compiled core (private: use the dcslam package).";
+  m.attr("__version__") = DCSLAM_VERSION;
+  dcslam::bindings::define_errors(m);
+  dcslam::bindings::define_geometry(m);
+  dcslam::bindings::define_config(m);
+}

@@ -1,0 +1,63 @@
+#include "dcslam/config.hpp"
+
+#include <cmath>
+#include <string>
+
+#include "dcslam/errors.hpp"
+
+namespace dcslam {
+
+Association parse_association(const std::string& name, const char* field) {
+  if (name == "known") return Association::Known;
+  if (name == "nn") return Association::NearestNeighbour;
+  if (name == "jcbb") return Association::Jcbb;
+  throw InvalidArgument(std::string(field) + ": unknown association '" + name +
+                        "' (expected 'known', 'nn' or 'jcbb')");
+}
+
+JoinAssociation parse_join_association(const std::string& name, const char* field) {
+  if (name == "known") return JoinAssociation::Known;
+  if (name == "jcbb") return JoinAssociation::Jcbb;
+  if (name == "rjc") return JoinAssociation::Rjc;
+  throw InvalidArgument(std::string(field) + ": unknown join association '" + name +
+                        "' (expected 'known', 'jcbb' or 'rjc')");
+}
+
+const char* to_string(Association association) {
+  switch (association) {
+    case Association::Known: return "known";
+    case Association::NearestNeighbour: return "nn";
+    case Association::Jcbb: return "jcbb";
+  }
+  return "?";
+}
+
+const char* to_string(JoinAssociation association) {
+  switch (association) {
+    case JoinAssociation::Known: return "known";
+    case JoinAssociation::Jcbb: return "jcbb";
+    case JoinAssociation::Rjc: return "rjc";
+  }
+  return "?";
+}
+
+namespace {
+void require(bool ok, const std::string& message) {
+  if (!ok) throw InvalidArgument("SlamConfig." + message);
+}
+}  // namespace
+
+void SlamConfig::validate() const {
+  require(sensor_offset.allFinite(), "sensor_offset: must be finite");
+  require(gate_confidence > 0.0 && gate_confidence < 1.0,
+          "gate_confidence: must lie in (0, 1), got " + std::to_string(gate_confidence));
+  require(local_map_features >= 1,
+          "local_map_features: must be >= 1, got " + std::to_string(local_map_features));
+  require(rjc_b >= 1, "rjc_b: must be >= 1, got " + std::to_string(rjc_b));
+  require(rjc_p_good > 0.0 && rjc_p_good < 1.0,
+          "rjc_p_good: must lie in (0, 1), got " + std::to_string(rjc_p_good));
+  require(rjc_p_fail > 0.0 && rjc_p_fail < 1.0,
+          "rjc_p_fail: must lie in (0, 1), got " + std::to_string(rjc_p_fail));
+}
+
+}  // namespace dcslam

@@ -1,0 +1,80 @@
+#include "dcslam/gaussian_map.hpp"
+
+#include <algorithm>
+
+#include "dcslam/errors.hpp"
+
+namespace dcslam {
+
+GaussianMap::GaussianMap() : x_(Eigen::VectorXd::Zero(32)), P_(Eigen::MatrixXd::Zero(32, 32)) {}
+
+void GaussianMap::reserve(Index dim) {
+  if (dim <= capacity()) return;
+  Index capacity = std::max<Index>(32, P_.rows());
+  while (capacity < dim) capacity *= 2;
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(capacity);
+  Eigen::MatrixXd P = Eigen::MatrixXd::Zero(capacity, capacity);
+  x.head(dim_) = x_.head(dim_);
+  P.topLeftCorner(dim_, dim_) = P_.topLeftCorner(dim_, dim_);
+  x_.swap(x);
+  P_.swap(P);
+}
+
+void GaussianMap::resize(Index dim) {
+  if (dim < kRobotDim || (dim - kRobotDim) % kFeatureDim != 0) {
+    throw InvalidArgument("GaussianMap::resize: dimension " + std::to_string(dim) +
+                          " is not 3 + 2n");
+  }
+  reserve(dim);
+  if (dim > dim_) {
+    x_.segment(dim_, dim - dim_).setZero();
+    P_.block(0, dim_, dim, dim - dim_).setZero();
+    P_.block(dim_, 0, dim - dim_, dim_).setZero();
+  }
+  dim_ = dim;
+  ids_.resize(static_cast<std::size_t>(num_features()), -1);
+}
+
+GaussianMap::Index GaussianMap::append_feature(const Vec2& mean, std::int64_t id) {
+  const Index k = num_features();
+  resize(dim_ + kFeatureDim);
+  x_.segment<2>(feature_offset(k)) = mean;
+  ids_[static_cast<std::size_t>(k)] = id;
+  return k;
+}
+
+void GaussianMap::remove_features(std::vector<Index> indices) {
+  if (indices.empty()) return;
+  std::sort(indices.begin(), indices.end());
+  const Index n = num_features();
+  std::vector<char> removed(static_cast<std::size_t>(n), 0);
+  for (Index k : indices) {
+    if (k < 0 || k >= n || removed[static_cast<std::size_t>(k)]) {
+      throw InvalidArgument("GaussianMap::remove_features: bad feature index " +
+                            std::to_string(k));
+    }
+    removed[static_cast<std::size_t>(k)] = 1;
+  }
+  // Source index of each kept state component, in order.
+  std::vector<Index> keep;
+  keep.reserve(static_cast<std::size_t>(dim_));
+  for (Index i = 0; i < kRobotDim; ++i) keep.push_back(i);
+  std::vector<std::int64_t> kept_ids;
+  for (Index k = 0; k < n; ++k) {
+    if (removed[static_cast<std::size_t>(k)]) continue;
+    keep.push_back(feature_offset(k));
+    keep.push_back(feature_offset(k) + 1);
+    kept_ids.push_back(ids_[static_cast<std::size_t>(k)]);
+  }
+  const Index new_dim = static_cast<Index>(keep.size());
+  // Columns move left and rows move up (keep[i] >= i), so one in-place forward pass is safe.
+  for (Index j = 0; j < new_dim; ++j) {
+    const Index src_col = keep[static_cast<std::size_t>(j)];
+    for (Index i = 0; i < new_dim; ++i) P_(i, j) = P_(keep[static_cast<std::size_t>(i)], src_col);
+    x_(j) = x_(src_col);
+  }
+  dim_ = new_dim;
+  ids_ = std::move(kept_ids);
+}
+
+}  // namespace dcslam

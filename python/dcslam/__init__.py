@@ -1,0 +1,12 @@
+"""dcslam: Divide and Conquer EKF SLAM with data association in linear time.
+
+Implements Paz, Guivant, Tardós, Neira, "Data Association in O(n) for Divide and Conquer
+SLAM", RSS 2007. See the README and ``API.md`` for the public surface.
+"""
+
+from ._version import __version__
+from . import geometry
+from ._core import InvalidArgument, ParseError
+from .config import SlamConfig
+
+__all__ = ["__version__", "geometry", "InvalidArgument", "ParseError", "SlamConfig"]

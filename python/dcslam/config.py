@@ -1,0 +1,72 @@
+"""SLAM configuration: a plain dataclass mirrored by the compiled ``_core.SlamConfig``."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Mapping, Tuple
+
+from . import _core
+
+__all__ = ["SlamConfig"]
+
+
+@dataclasses.dataclass
+class SlamConfig:
+    """Options of an :class:`~dcslam.EkfSlam` or :class:`~dcslam.DCSlam` run.
+
+    Every field has a default. Option values are checked when a filter is built (or by
+    :meth:`validate`): an unknown name or an out-of-range number raises ``ValueError``
+    naming the field.
+
+    Attributes:
+        observation: ``"range_bearing"`` (r, beta) or ``"point"`` ((x, y) in the sensor frame).
+        sensor_offset: sensor pose (x, y, phi) on the robot.
+        association: data association inside local maps: ``"known"``, ``"nn"`` or ``"jcbb"``.
+        gate_confidence: chi-square confidence of the individual/joint compatibility tests.
+        local_map_features: D&C closes a local map when it holds this many features.
+        join_association: association at D&C joins: ``"rjc"``, ``"jcbb"`` or ``"known"``.
+        rjc_b, rjc_p_good, rjc_p_fail: RJC (Paz et al. 2007, Alg. 3) parameters.
+        seed: every random choice is reproducible from it.
+        amortize: D&C spreads each join over the following steps (DESIGN.md §5).
+    """
+
+    observation: str = "range_bearing"
+    sensor_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
+    association: str = "jcbb"
+    gate_confidence: float = 0.99
+    local_map_features: int = 30
+    join_association: str = "rjc"
+    rjc_b: int = 4
+    rjc_p_good: float = 0.8
+    rjc_p_fail: float = 0.01
+    seed: int = 0
+    amortize: bool = True
+
+    def _to_core(self) -> "_core.SlamConfig":
+        core = _core.SlamConfig()
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            try:
+                setattr(core, field.name, value)
+            except TypeError as error:  # wrong Python type for a compiled field
+                raise ValueError(
+                    f"SlamConfig.{field.name}: invalid value {value!r} ({error})"
+                ) from None
+        core.validate()
+        return core
+
+    def validate(self) -> "SlamConfig":
+        """Checks every field; raises ``ValueError`` naming the first bad one."""
+        self._to_core()
+        return self
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> "SlamConfig":
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"SlamConfig: unknown field(s) {', '.join(unknown)}")
+        return cls(**dict(values))

@@ -1,0 +1,64 @@
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "dcslam/gaussian_map.hpp"
+
+namespace dcslam {
+namespace {
+
+// Fills a map with n features and a random symmetric P whose entry (i, j) encodes (i, j).
+GaussianMap labelled_map(int n) {
+  GaussianMap map;
+  for (int k = 0; k < n; ++k) map.append_feature(Vec2(k, -k), 100 + k);
+  for (Eigen::Index i = 0; i < map.dim(); ++i) {
+    map.x()(i) = i;
+    for (Eigen::Index j = 0; j < map.dim(); ++j) map.P()(i, j) = 1000.0 * std::min(i, j) + std::max(i, j);
+  }
+  return map;
+}
+
+TEST(GaussianMap, StartsAsRobotAtOriginWithZeroCovariance) {
+  GaussianMap map;
+  EXPECT_EQ(map.dim(), 3);
+  EXPECT_EQ(map.num_features(), 0);
+  EXPECT_TRUE(map.x().isZero());
+  EXPECT_TRUE(map.P().isZero());
+}
+
+TEST(GaussianMap, GrowthKeepsContentsAndZeroesNewBlocks) {
+  GaussianMap map = labelled_map(40);  // crosses the initial capacity several times
+  const Eigen::MatrixXd before = map.P();
+  map.append_feature(Vec2(7, 8), 999);
+  EXPECT_EQ(map.num_features(), 41);
+  EXPECT_TRUE(map.P().topLeftCorner(before.rows(), before.cols()).isApprox(before));
+  EXPECT_TRUE(map.P().rightCols(2).isZero());
+  EXPECT_TRUE(map.P().bottomRows(2).isZero());
+  EXPECT_EQ(map.feature(40), Vec2(7, 8));
+  EXPECT_EQ(map.ids().back(), 999);
+}
+
+TEST(GaussianMap, RemoveFeaturesMatchesSelectingKeptRowsAndColumns) {
+  GaussianMap map = labelled_map(12);
+  const Eigen::MatrixXd P = map.P();
+  const Eigen::VectorXd x = map.x();
+  const std::vector<Eigen::Index> removed = {7, 0, 11, 4};
+  map.remove_features(removed);
+  std::vector<Eigen::Index> keep = {0, 1, 2};
+  std::vector<std::int64_t> ids;
+  for (int k = 0; k < 12; ++k) {
+    if (k == 0 || k == 4 || k == 7 || k == 11) continue;
+    keep.push_back(3 + 2 * k);
+    keep.push_back(4 + 2 * k);
+    ids.push_back(100 + k);
+  }
+  ASSERT_EQ(map.dim(), static_cast<Eigen::Index>(keep.size()));
+  for (std::size_t i = 0; i < keep.size(); ++i) {
+    EXPECT_EQ(map.x()(i), x(keep[i]));
+    for (std::size_t j = 0; j < keep.size(); ++j) EXPECT_EQ(map.P()(i, j), P(keep[i], keep[j]));
+  }
+  EXPECT_EQ(map.ids(), ids);
+}
+
+}  // namespace
+}  // namespace dcslam

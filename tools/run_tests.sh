@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# Installs whatever is missing, then runs every test: the C++ suite (ctest) and the Python
+# suite (pytest). Exits non-zero on any failure.
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/setup.sh"
+
+echo "== ctest"
+ctest --test-dir build/dev --output-on-failure -j2
+echo "== pytest"
+"$PY" -m pytest -q tests/python
