@@ -1,0 +1,69 @@
+#pragma once
+// The interface shared by EkfSlam and DCSlam (API.md: "dcslam.EkfSlam(cfg) has the same
+// interface"). The Python wrappers are written once against it.
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "dcslam/geometry.hpp"
+
+namespace dcslam {
+
+// Measurements of one scan: z is (m, 2), row-major so numpy arrays map without a copy.
+using MeasurementMatrix = Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>;
+using MeasurementsRef = Eigen::Ref<const MeasurementMatrix>;
+
+// The whole map in the frame of the first pose, ordered [robot, lm 0, lm 1, ...].
+struct Estimate {
+  Vec3 robot = Vec3::Zero();
+  Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> landmarks;  // (n, 2)
+  std::vector<std::int64_t> landmark_ids;                                // (n,)
+  Eigen::MatrixXd covariance;                                            // (3+2n, 3+2n)
+};
+
+// What one step (a predict and the updates after it) did and cost.
+struct StepStats {
+  double seconds = 0.0;       // wall time of the step, including any join work it did
+  std::int64_t num_features = 0;  // map size after the step (all local maps for D&C)
+  int measurements = 0;
+  int paired = 0;             // measurements paired with an existing feature
+  int new_features = 0;       // measurements that started a feature
+  int rejected = 0;           // measurements rejected as spurious (id -1)
+};
+
+struct RunStats {
+  std::vector<StepStats> steps;
+  // Named totals, e.g. "jcbb_bound_hits", "joins". Free-form, documented where set.
+  std::map<std::string, double> counters;
+};
+
+class SlamFilter {
+ public:
+  virtual ~SlamFilter() = default;
+
+  // u: relative motion x_{R(k-1) R(k)}; Q: its covariance, symmetric PSD. Opens a new step.
+  virtual void predict(const Vec3& u, const Mat3& Q) = 0;
+
+  // z (m, 2); R holds either one 2x2 covariance for all measurements or m of them
+  // (symmetric positive definite); landmark_ids (m) only in "known" association mode.
+  // Returns, per measurement, the feature id it went to (fresh id for a new feature, -1 for
+  // a rejected one). Invalid input throws InvalidArgument and leaves the filter unchanged.
+  virtual std::vector<std::int64_t> update(const MeasurementsRef& z, const std::vector<Mat2>& R,
+                                           const std::vector<std::int64_t>* landmark_ids) = 0;
+
+  // The whole map; never disturbs the run (D&C joins its stack on a copy).
+  virtual Estimate estimate() const = 0;
+
+  // Current robot pose in the first pose's frame, cheap (no covariance, no joins).
+  virtual Vec3 pose() const = 0;
+
+  // Maps ids ever returned by update() to the id of the feature holding them now. -1 stays -1.
+  virtual std::vector<std::int64_t> resolve(const std::vector<std::int64_t>& ids) const = 0;
+
+  virtual const RunStats& stats() const = 0;
+};
+
+}  // namespace dcslam
