@@ -8,6 +8,19 @@ namespace dcslam {
 
 GaussianMap::GaussianMap() : x_(Eigen::VectorXd::Zero(32)), P_(Eigen::MatrixXd::Zero(32, 32)) {}
 
+GaussianMap GaussianMap::uninitialized(Index dim) {
+  if (dim < kRobotDim || (dim - kRobotDim) % kFeatureDim != 0) {
+    throw InvalidArgument("GaussianMap::uninitialized: dimension " + std::to_string(dim) +
+                          " is not 3 + 2n");
+  }
+  GaussianMap map;
+  map.x_.resize(dim);
+  map.P_.resize(dim, dim);
+  map.dim_ = dim;
+  map.ids_.assign(static_cast<std::size_t>(map.num_features()), -1);
+  return map;
+}
+
 void GaussianMap::reserve(Index dim) {
   if (dim <= capacity()) return;
   Index capacity = std::max<Index>(32, P_.rows());

@@ -23,6 +23,10 @@ class GaussianMap {
   // A map whose robot sits at its base frame's origin with zero covariance.
   GaussianMap();
 
+  // A map of the given dimension whose storage fits exactly (no headroom: for maps that
+  // will not grow, such as the results of joins). Contents are left uninitialised.
+  static GaussianMap uninitialized(Index dim);
+
   Index dim() const { return dim_; }
   Index num_features() const { return (dim_ - kRobotDim) / kFeatureDim; }
   static Index feature_offset(Index k) { return kRobotDim + kFeatureDim * k; }

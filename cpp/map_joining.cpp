@@ -1,0 +1,407 @@
+#include "dcslam/map_joining.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
+#include <unordered_map>
+
+#include <Eigen/Cholesky>
+
+#include "dcslam/errors.hpp"
+#include "dcslam/join_association.hpp"
+
+namespace dcslam {
+
+using Index = Eigen::Index;
+
+namespace {
+
+class ScopedTimer {
+ public:
+  explicit ScopedTimer(double& total) : total_(total), start_(std::chrono::steady_clock::now()) {}
+  ~ScopedTimer() {
+    total_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+  }
+
+ private:
+  double& total_;
+  std::chrono::steady_clock::time_point start_;
+};
+
+// Row of x_{B1 R1} ⊕ p's Jacobian w.r.t. x_{B1 R1}, for a point p of m2 (rotated: Rp).
+Eigen::Matrix<double, 2, 3> point_jacobian(const Vec2& rotated) {
+  Eigen::Matrix<double, 2, 3> J;
+  J << 1, 0, -rotated.y(), 0, 1, rotated.x();
+  return J;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------
+JoinFrame::JoinFrame(const GaussianMap& first, const GaussianMap& second)
+    : first_(first), second_(second), T_(first.robot()) {
+  const double c = std::cos(T_.z()), s = std::sin(T_.z());
+  rotation_ << c, -s, s, c;
+  J_R_.resize(second.dim(), 3);
+  J_R_.topRows<3>() << point_jacobian(rotation_ * second.robot().head<2>()), 0, 0, 1;
+  for (Index j = 0; j < second.num_features(); ++j) {
+    J_R_.middleRows<2>(GaussianMap::feature_offset(j)) =
+        point_jacobian(rotation_ * second.feature(j));
+  }
+}
+
+Vec2 JoinFrame::moved_second_feature(Index j) const {
+  return T_.head<2>() + rotation_ * second_.feature(j);
+}
+
+Vec3 JoinFrame::moved_second_robot() const { return compose(T_, second_.robot()); }
+
+Mat2 JoinFrame::first_first(Index i, Index k) const {
+  return first_.P().block<2, 2>(GaussianMap::feature_offset(i), GaussianMap::feature_offset(k));
+}
+
+Mat2 JoinFrame::first_second(Index i, Index j) const {
+  return first_.P().block<2, 3>(GaussianMap::feature_offset(i), 0) *
+         J_R_.middleRows<2>(GaussianMap::feature_offset(j)).transpose();
+}
+
+Mat2 JoinFrame::second_second(Index j, Index l) const {
+  const Index oj = GaussianMap::feature_offset(j), ol = GaussianMap::feature_offset(l);
+  return J_R_.middleRows<2>(oj) * first_.P().topLeftCorner<3, 3>() *
+             J_R_.middleRows<2>(ol).transpose() +
+         rotation_ * second_.P().block<2, 2>(oj, ol) * rotation_.transpose();
+}
+
+Mat2 JoinFrame::constraint_covariance(Index i, Index j, Index k, Index l) const {
+  return first_first(i, k) - first_second(i, l) - first_second(k, j).transpose() +
+         second_second(j, l);
+}
+
+// ---------------------------------------------------------------------------------------
+std::vector<std::pair<Index, Index>> associate_by_id(const GaussianMap& first,
+                                                     const GaussianMap& second) {
+  std::unordered_map<std::int64_t, Index> index_of;
+  index_of.reserve(first.ids().size());
+  for (std::size_t i = 0; i < first.ids().size(); ++i) index_of.emplace(first.ids()[i], i);
+  std::vector<std::pair<Index, Index>> pairs;
+  for (std::size_t j = 0; j < second.ids().size(); ++j) {
+    const auto it = index_of.find(second.ids()[j]);
+    if (it != index_of.end()) pairs.emplace_back(it->second, static_cast<Index>(j));
+  }
+  return pairs;
+}
+
+// ---------------------------------------------------------------------------------------
+MapJoin::MapJoin(std::shared_ptr<const GaussianMap> first,
+                 std::shared_ptr<const GaussianMap> second, JoinOptions options)
+    : first_(std::move(first)), second_(std::move(second)), options_(options) {
+  if (!first_ || !second_) throw InvalidArgument("MapJoin: both maps are required");
+  options_.block_columns = std::max<Index>(2, options_.block_columns & ~Index{1});
+  report_.features_first = first_->num_features();
+  report_.features_second = second_->num_features();
+}
+
+std::int64_t MapJoin::remaining_work() const {
+  if (phase_ == Phase::Done) return 0;
+  const Index out_dim = phase_ == Phase::Fill
+                            ? result_.dim()
+                            : first_->dim() + second_->dim() - GaussianMap::kRobotDim;
+  return static_cast<std::int64_t>(out_dim) * (out_dim - next_out_col_);
+}
+
+std::int64_t MapJoin::advance(std::int64_t budget) {
+  double& seconds = report_.seconds_total;
+  ScopedTimer timer(seconds);
+  std::int64_t spent = 0;
+  while (phase_ != Phase::Done && (spent == 0 || spent < budget)) {
+    switch (phase_) {
+      case Phase::Associate: {
+        associate();
+        const std::int64_t units = first_->num_features() + second_->num_features();
+        spent += units;
+        phase_ = Phase::Prepare;
+        break;
+      }
+      case Phase::Prepare: {
+        prepare();
+        const std::int64_t units =
+            static_cast<std::int64_t>(result_.dim()) * (2 * static_cast<Index>(pairs_.size()) + 1);
+        spent += units;
+        phase_ = Phase::Fill;
+        break;
+      }
+      case Phase::Fill:
+        spent += fill_next_block();
+        if (next_out_col_ == result_.dim()) {
+          release_inputs();
+          phase_ = Phase::Done;
+        }
+        break;
+      case Phase::Done:
+        break;
+    }
+  }
+  report_.work_units += spent;
+  return spent;
+}
+
+void MapJoin::finish() { advance(std::numeric_limits<std::int64_t>::max()); }
+
+GaussianMap MapJoin::take_result() {
+  if (phase_ != Phase::Done) throw std::logic_error("MapJoin::take_result: join not finished");
+  return std::move(result_);
+}
+
+std::vector<std::pair<std::int64_t, std::int64_t>> MapJoin::merged_ids() const {
+  return merged_ids_;
+}
+
+void MapJoin::associate() {
+  ScopedTimer timer(report_.seconds_association);
+  const GaussianMap& m1 = *first_;
+  const GaussianMap& m2 = *second_;
+  if (options_.association == JoinAssociation::Known) {
+    pairs_ = associate_by_id(m1, m2);
+    report_.overlap = static_cast<int>(pairs_.size());
+  } else {
+    JoinFrame frame(m1, m2);
+    JoinAssociationResult result = associate_maps(frame, options_);
+    pairs_ = std::move(result.pairs);
+    report_.overlap = result.overlap;
+    report_.tries = result.tries;
+  }
+  report_.pairings = static_cast<int>(pairs_.size());
+  merged_ids_.clear();
+  for (const auto& [i, j] : pairs_) {
+    merged_ids_.emplace_back(m2.ids()[static_cast<std::size_t>(j)],
+                             m1.ids()[static_cast<std::size_t>(i)]);
+  }
+}
+
+void MapJoin::prepare() {
+  const GaussianMap& m1 = *first_;
+  const GaussianMap& m2 = *second_;
+  const JoinFrame frame(m1, m2);
+  rotation_ = frame.rotation();
+  const Index n1 = m1.num_features(), n2 = m2.num_features();
+  const Index d2 = m2.dim();
+  const Index r = static_cast<Index>(pairs_.size());
+  const auto& J_R = frame.jacobian_first_robot();
+  const auto P1 = m1.P();
+  const auto P2 = m2.P();
+  const Mat3 P1_RR = P1.topLeftCorner<3, 3>();
+
+  // Kept elements of m2: its robot (R2, the joined map's robot) and unmatched features.
+  std::vector<char> matched(static_cast<std::size_t>(n2), 0);
+  for (const auto& pair : pairs_) matched[static_cast<std::size_t>(pair.second)] = 1;
+  second_kept_rows_ = {0, 1, 2};
+  std::vector<std::int64_t> kept_ids;
+  for (Index j = 0; j < n2; ++j) {
+    if (matched[static_cast<std::size_t>(j)]) continue;
+    second_kept_rows_.push_back(GaussianMap::feature_offset(j));
+    second_kept_rows_.push_back(GaussianMap::feature_offset(j) + 1);
+    kept_ids.push_back(m2.ids()[static_cast<std::size_t>(j)]);
+  }
+  const Index d2k = static_cast<Index>(second_kept_rows_.size());
+  J_R_kept_.resize(d2k, 3);
+  for (Index a = 0; a < d2k; ++a) J_R_kept_.row(a) = J_R.row(second_kept_rows_[static_cast<std::size_t>(a)]);
+  J_R_kept_P_RR_ = J_R_kept_ * P1_RR;
+
+  // P H' for the constraints f_i - f'_j, on m1's feature rows and all of m2's rows.
+  const auto A1 = P1.block(3, 0, 2 * n1, 3);  // cov(F1, R1)
+  Eigen::MatrixXd PHt_first(2 * n1, 2 * r), PHt_second(d2, 2 * r);
+  Eigen::VectorXd h(2 * r);
+  for (Index k = 0; k < r; ++k) {
+    const auto [i, j] = pairs_[static_cast<std::size_t>(k)];
+    const Index oi = GaussianMap::feature_offset(i), oj = GaussianMap::feature_offset(j);
+    const Eigen::Matrix<double, 2, 3> J_j = J_R.middleRows<2>(oj);
+    PHt_first.middleCols<2>(2 * k).noalias() = P1.block(3, oi, 2 * n1, 2);
+    PHt_first.middleCols<2>(2 * k).noalias() -= A1 * J_j.transpose();
+    // cov(m2 rows, f'_j) = J_R P1_RR J_j' + J_2 P2[:, f_j] Rot'.
+    Eigen::MatrixXd second_col = P2.middleCols(oj, 2) * rotation_.transpose();
+    rotate_second_rows(second_col);
+    PHt_second.middleCols<2>(2 * k).noalias() = J_R * P1.block(0, oi, 3, 2);
+    PHt_second.middleCols<2>(2 * k).noalias() -= J_R * (P1_RR * J_j.transpose());
+    PHt_second.middleCols<2>(2 * k) -= second_col;
+    h.segment<2>(2 * k) = m1.feature(i) - frame.moved_second_feature(j);
+  }
+  Eigen::MatrixXd S(2 * r, 2 * r);
+  for (Index a = 0; a < r; ++a) {
+    const auto [i, j] = pairs_[static_cast<std::size_t>(a)];
+    S.middleRows<2>(2 * a) = PHt_first.middleRows<2>(2 * i) -
+                             PHt_second.middleRows<2>(GaussianMap::feature_offset(j));
+  }
+  S = 0.5 * (S + S.transpose()).eval();
+  Eigen::LLT<Eigen::MatrixXd> llt(S);
+  if (r > 0 && llt.info() != Eigen::Success) {
+    throw std::runtime_error(
+        "map join: the covariance of the matched-pair constraints is not positive definite "
+        "(two matched features are perfectly correlated)");
+  }
+  // W = P H' L^-T, so that P_out = P - W W' and x_out = x - W L^-1 h.
+  W_first_ = PHt_first;
+  Eigen::MatrixXd W_second = PHt_second;
+  Eigen::VectorXd v = h;
+  if (r > 0) {
+    const auto L = llt.matrixL();
+    L.transpose().solveInPlace<Eigen::OnTheRight>(W_first_);
+    L.transpose().solveInPlace<Eigen::OnTheRight>(W_second);
+    L.solveInPlace(v);
+  }
+  W_second_kept_.resize(d2k, 2 * r);
+  for (Index a = 0; a < d2k; ++a) {
+    W_second_kept_.row(a) = W_second.row(second_kept_rows_[static_cast<std::size_t>(a)]);
+  }
+
+  // The result: [R2'; F1; F2' unmatched], means corrected by the constraints.
+  const Index n2k = (d2k - 3) / 2;
+  result_ = GaussianMap::uninitialized(3 + 2 * n1 + 2 * n2k);
+  auto x = result_.x();
+  Vec3 robot = frame.moved_second_robot() - W_second_kept_.topRows<3>() * v;
+  robot.z() = wrap_angle(robot.z());
+  x.head<3>() = robot;
+  x.segment(3, 2 * n1) = m1.x().tail(2 * n1) - W_first_ * v;
+  for (Index a = 3; a < d2k; a += 2) {
+    const Index j = (second_kept_rows_[static_cast<std::size_t>(a)] - 3) / 2;
+    x.segment<2>(3 + 2 * n1 + (a - 3)) =
+        frame.moved_second_feature(j) - W_second_kept_.middleRows<2>(a) * v;
+  }
+  auto& ids = result_.ids();
+  std::copy(m1.ids().begin(), m1.ids().end(), ids.begin());
+  std::copy(kept_ids.begin(), kept_ids.end(), ids.begin() + static_cast<std::ptrdiff_t>(n1));
+  report_.features_joined = result_.num_features();
+  next_out_col_ = 0;
+}
+
+// Applies J_2 (block-diagonal rotations: Rot on the robot's (x, y), identity on its heading,
+// Rot on each feature) from the left to a block whose rows are m2's elements. Rows are
+// either all of m2's or its kept ones; both start with the robot and then pair up.
+void MapJoin::rotate_second_rows(Eigen::Ref<Eigen::MatrixXd> block) const {
+  const double c = rotation_(0, 0), s = rotation_(1, 0);
+  const auto rotate_pair = [&](Index a) {
+    for (Index col = 0; col < block.cols(); ++col) {
+      const double u = block(a, col), w = block(a + 1, col);
+      block(a, col) = c * u - s * w;
+      block(a + 1, col) = s * u + c * w;
+    }
+  };
+  rotate_pair(0);
+  for (Index a = 3; a + 1 < block.rows(); a += 2) rotate_pair(a);
+}
+
+// Applies J_2' from the right to columns [local_begin, local_begin + cols) of m2's kept
+// elements (a block of even width starting at a pair, or the robot's three columns).
+void MapJoin::rotate_second_columns(Eigen::Ref<Eigen::MatrixXd> block,
+                                    Index local_begin) const {
+  const double c = rotation_(0, 0), s = rotation_(1, 0);
+  // The robot's block is its three columns: (x, y) rotate, the heading stays as it is.
+  const Index pairs_end = local_begin == 0 ? 2 : block.cols();
+  for (Index a = 0; a + 1 < pairs_end; a += 2) {
+    for (Index row = 0; row < block.rows(); ++row) {
+      const double u = block(row, a), w = block(row, a + 1);
+      block(row, a) = c * u - s * w;
+      block(row, a + 1) = s * u + c * w;
+    }
+  }
+}
+
+std::int64_t MapJoin::fill_next_block() {
+  const Index n1 = first_->num_features();
+  const Index first_begin = 3, first_end = 3 + 2 * n1;
+  const Index out_dim = result_.dim();
+  const Index col = next_out_col_;
+  Index width;
+  if (col < first_begin) {  // the robot's columns
+    width = 3;
+    fill_second_columns(0, width, col);
+  } else if (col < first_end) {
+    width = std::min(options_.block_columns, first_end - col);
+    fill_first_columns(col - first_begin, width, col);
+  } else {
+    width = std::min(options_.block_columns, out_dim - col);
+    fill_second_columns(3 + (col - first_end), width, col);
+  }
+  next_out_col_ += width;
+  return static_cast<std::int64_t>(out_dim) * width;
+}
+
+// Output columns of m2's kept elements [local_begin, local_begin + width).
+void MapJoin::fill_second_columns(Index local_begin, Index width, Index out_col) {
+  const GaussianMap& m1 = *first_;
+  const GaussianMap& m2 = *second_;
+  const Index n1 = m1.num_features();
+  const Index d2k = static_cast<Index>(second_kept_rows_.size());
+  const auto P2 = m2.P();
+  auto out = result_.P();
+
+  // cov(m2 kept, these columns) = J_R P1_RR J_R' + J_2 P2 J_2' - W2 W2'.
+  scratch_second_.resize(d2k, width);
+  for (Index b = 0; b < width; ++b) {
+    const Index src_col = second_kept_rows_[static_cast<std::size_t>(local_begin + b)];
+    for (Index a = 0; a < d2k; ++a) {
+      scratch_second_(a, b) = P2(second_kept_rows_[static_cast<std::size_t>(a)], src_col);
+    }
+  }
+  rotate_second_rows(scratch_second_);
+  rotate_second_columns(scratch_second_, local_begin);
+  const auto J_cols = J_R_kept_.middleRows(local_begin, width);
+  const auto W_cols = W_second_kept_.middleRows(local_begin, width);
+  scratch_second_.noalias() += J_R_kept_P_RR_ * J_cols.transpose();
+  scratch_second_.noalias() -= W_second_kept_ * W_cols.transpose();
+
+  // cov(F1, these columns) = cov(F1, R1) J_R' - W1 W2'.
+  const auto A1 = m1.P().block(3, 0, 2 * n1, 3);
+  scratch_first_.resize(2 * n1, width);
+  scratch_first_.noalias() = A1 * J_cols.transpose();
+  scratch_first_.noalias() -= W_first_ * W_cols.transpose();
+
+  out.block(0, out_col, 3, width) = scratch_second_.topRows(3);
+  out.block(3, out_col, 2 * n1, width) = scratch_first_;
+  out.block(3 + 2 * n1, out_col, d2k - 3, width) = scratch_second_.bottomRows(d2k - 3);
+}
+
+// Output columns of m1's features, feature-coordinate columns [begin, begin + width).
+void MapJoin::fill_first_columns(Index begin, Index width, Index out_col) {
+  const GaussianMap& m1 = *first_;
+  const Index n1 = m1.num_features();
+  const Index d2k = static_cast<Index>(second_kept_rows_.size());
+  const auto P1 = m1.P();
+  auto out = result_.P();
+  const auto W_cols = W_first_.middleRows(begin, width);
+
+  scratch_first_.resize(2 * n1, width);
+  scratch_first_ = P1.block(3, 3 + begin, 2 * n1, width);
+  scratch_first_.noalias() -= W_first_ * W_cols.transpose();
+
+  scratch_second_.resize(d2k, width);
+  scratch_second_.noalias() = J_R_kept_ * P1.block(0, 3 + begin, 3, width);
+  scratch_second_.noalias() -= W_second_kept_ * W_cols.transpose();
+
+  out.block(0, out_col, 3, width) = scratch_second_.topRows(3);
+  out.block(3, out_col, 2 * n1, width) = scratch_first_;
+  out.block(3 + 2 * n1, out_col, d2k - 3, width) = scratch_second_.bottomRows(d2k - 3);
+}
+
+void MapJoin::release_inputs() {
+  first_.reset();
+  second_.reset();
+  W_first_ = Eigen::MatrixXd();
+  W_second_kept_ = Eigen::MatrixXd();
+  scratch_first_ = Eigen::MatrixXd();
+  scratch_second_ = Eigen::MatrixXd();
+}
+
+GaussianMap join_maps(const GaussianMap& first, const GaussianMap& second,
+                      const JoinOptions& options, JoinReport* report) {
+  // Aliasing shared_ptrs: the join only reads the maps, which outlive this call.
+  MapJoin join(std::shared_ptr<const GaussianMap>(std::shared_ptr<void>(), &first),
+               std::shared_ptr<const GaussianMap>(std::shared_ptr<void>(), &second), options);
+  join.finish();
+  if (report) *report = join.report();
+  return join.take_result();
+}
+
+}  // namespace dcslam

@@ -1,0 +1,21 @@
+#pragma once
+// Data association between the two maps of a D&C join without ids (DESIGN.md §6): candidate
+// pairs through a spatial hash over m1's features, individual compatibility with the pair
+// covariance P_ii + P_jj - P_ij - P_ji, then JCBB over the whole overlap ("jcbb") or RJC
+// (the paper's Algorithm 3, "rjc").
+#include <utility>
+#include <vector>
+
+#include "dcslam/map_joining.hpp"
+
+namespace dcslam {
+
+struct JoinAssociationResult {
+  std::vector<std::pair<Eigen::Index, Eigen::Index>> pairs;  // (i in m1, j in m2)
+  int overlap = 0;
+  int tries = 0;
+};
+
+JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options);
+
+}  // namespace dcslam

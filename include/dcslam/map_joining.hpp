@@ -1,0 +1,149 @@
+#pragma once
+// Map joining 2.0 (DESIGN.md §4; Paz et al. 2007 §III): join a map m1 (base B1, robot R1)
+// with the next map m2 (base B2 = R1, robot R2) into one map with base B1, robot R2 and
+// features m1 ∪ (m2 \ matched).
+//
+// The join is computed as one fused pass: the stacked covariance of [m1; m2 moved into B1]
+// is never built. Its blocks are produced on demand from P1, P2 and the Jacobians of ⊕, the
+// matched pairs are imposed as ideal constraints f_i - f_j = 0 through W = P H' L^-T
+// (S = H P H' = L L'), and each column block of the result, P_out = P_stacked - W W', is
+// written straight into its final place, already compacted. The pass is split into column
+// blocks of fixed width so that a join can be spread over many steps (amortized D&C) or run
+// on a worker thread, with bitwise the same result whichever way it is run.
+#include <cstdint>
+#include <memory>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "dcslam/config.hpp"
+#include "dcslam/gaussian_map.hpp"
+
+namespace dcslam {
+
+struct JoinOptions {
+  JoinAssociation association = JoinAssociation::Known;
+  double gate_confidence = 0.99;
+  int rjc_b = 4;
+  double rjc_p_good = 0.8;
+  double rjc_p_fail = 0.01;
+  std::uint64_t seed = 0;
+  // Width of the column blocks the result is written in: the unit of resumable work.
+  Eigen::Index block_columns = 64;
+};
+
+struct JoinReport {
+  Eigen::Index features_first = 0;
+  Eigen::Index features_second = 0;
+  Eigen::Index features_joined = 0;
+  int overlap = 0;   // features of m2 with at least one individually compatible candidate
+  int pairings = 0;  // matched pairs imposed as constraints
+  int tries = 0;     // RJC hypotheses tried (0 for other modes)
+  double seconds_association = 0.0;
+  double seconds_total = 0.0;  // summed over all the slices the join was run in
+  std::int64_t work_units = 0;  // covariance elements written plus association/preparation
+};
+
+// Covariance blocks of the stacked map [R1; F1; R2'; F2'] (m2 moved into B1 by
+// x_{B1 R1} ⊕ ·), computed on demand in O(1) each, without building the stacked matrix.
+// Feature indices are local: i indexes m1's features, j indexes m2's.
+class JoinFrame {
+ public:
+  JoinFrame(const GaussianMap& first, const GaussianMap& second);
+
+  const GaussianMap& first() const { return first_; }
+  const GaussianMap& second() const { return second_; }
+
+  Vec2 first_feature(Eigen::Index i) const { return first_.feature(i); }
+  // m2's feature j expressed in B1.
+  Vec2 moved_second_feature(Eigen::Index j) const;
+  Vec3 moved_second_robot() const;
+
+  // cov(f_i, f_k), cov(f_i, f'_j), cov(f'_j, f'_l) of the stacked map.
+  Mat2 first_first(Eigen::Index i, Eigen::Index k) const;
+  Mat2 first_second(Eigen::Index i, Eigen::Index j) const;
+  Mat2 second_second(Eigen::Index j, Eigen::Index l) const;
+
+  // cov(h_a, h_b) for the constraints h_a = f_i - f'_j and h_b = f_k - f'_l.
+  Mat2 constraint_covariance(Eigen::Index i, Eigen::Index j, Eigen::Index k,
+                             Eigen::Index l) const;
+
+  // J_R: d(x_{B1 R1} ⊕ e)/d x_{B1 R1} for every element e of m2, stacked (d2 x 3).
+  const Eigen::Matrix<double, Eigen::Dynamic, 3>& jacobian_first_robot() const { return J_R_; }
+  // The rotation of R1: d(x_{B1 R1} ⊕ p)/dp for a point p.
+  const Mat2& rotation() const { return rotation_; }
+
+ private:
+  const GaussianMap& first_;
+  const GaussianMap& second_;
+  Vec3 T_;  // x_{B1 R1}
+  Mat2 rotation_;
+  Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_;
+};
+
+// Data association between the two maps of a join: pairs (i in m1, j in m2) of features
+// that are the same landmark. Implementations: by id ("known") and by joint compatibility.
+std::vector<std::pair<Eigen::Index, Eigen::Index>> associate_by_id(const GaussianMap& first,
+                                                                   const GaussianMap& second);
+
+class MapJoin {
+ public:
+  using Pairs = std::vector<std::pair<Eigen::Index, Eigen::Index>>;
+
+  // The inputs are shared and never modified (an anytime estimate may join copies of the same
+  // inputs while the real join is pending).
+  MapJoin(std::shared_ptr<const GaussianMap> first, std::shared_ptr<const GaussianMap> second,
+          JoinOptions options);
+
+  // Does at least one unit of work (if not done) and stops once `budget` work units are
+  // spent. Returns the work done.
+  std::int64_t advance(std::int64_t budget);
+  void finish();
+  bool done() const { return phase_ == Phase::Done; }
+  // Work left, in the units of advance(); exact once association is done, an estimate before.
+  std::int64_t remaining_work() const;
+
+  // The joined map; valid once done(). Leaves the join empty.
+  GaussianMap take_result();
+  const JoinReport& report() const { return report_; }
+  // (id in m2, id in m1) for every matched pair: the m2 feature merged into the m1 one.
+  std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids() const;
+
+ private:
+  enum class Phase { Associate, Prepare, Fill, Done };
+  void associate();
+  void prepare();
+  std::int64_t fill_next_block();
+  void fill_second_columns(Eigen::Index local_begin, Eigen::Index width, Eigen::Index out_col);
+  void fill_first_columns(Eigen::Index feature_col_begin, Eigen::Index width,
+                          Eigen::Index out_col);
+  void rotate_second_rows(Eigen::Ref<Eigen::MatrixXd> block) const;
+  void rotate_second_columns(Eigen::Ref<Eigen::MatrixXd> block, Eigen::Index local_begin) const;
+  void release_inputs();
+
+  std::shared_ptr<const GaussianMap> first_, second_;
+  JoinOptions options_;
+  Phase phase_ = Phase::Associate;
+  JoinReport report_;
+  Pairs pairs_;
+  std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids_;
+
+  // Prepared for the fill: kept rows of m2 (robot, then unmatched features), the Jacobian
+  // rows of ⊕ for them, the W factors of the constraint update, and the output.
+  std::vector<Eigen::Index> second_kept_rows_;
+  Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_kept_;
+  Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_kept_P_RR_;  // J_R_kept * P1[R1, R1]
+  Eigen::MatrixXd W_first_;        // rows of W for m1's features (2 n1 x 2r)
+  Eigen::MatrixXd W_second_kept_;  // rows of W for m2's kept elements (d2k x 2r)
+  Mat2 rotation_;
+  GaussianMap result_;
+  Eigen::Index next_out_col_ = 0;
+  Eigen::MatrixXd scratch_second_, scratch_first_;
+};
+
+// Joins two maps at once (no amortization).
+GaussianMap join_maps(const GaussianMap& first, const GaussianMap& second,
+                      const JoinOptions& options, JoinReport* report = nullptr);
+
+}  // namespace dcslam
