@@ -41,6 +41,7 @@ void define_config(py::module_& m) {
       .def_readwrite("rjc_p_fail", &SlamConfig::rjc_p_fail)
       .def_readwrite("seed", &SlamConfig::seed)
       .def_readwrite("amortize", &SlamConfig::amortize)
+      .def_readwrite("threaded_joins", &SlamConfig::threaded_joins)
       .def("validate", &SlamConfig::validate);
 }
 

@@ -31,6 +31,9 @@ struct SlamConfig {
   double rjc_p_fail = 0.01;
   std::uint64_t seed = 0;
   bool amortize = true;
+  // D&C: run joins on a background worker thread instead (the multi-core form of the
+  // amortized schedule); results are bitwise identical to immediate and amortized joins.
+  bool threaded_joins = false;
 
   // Throws InvalidArgument naming the first field that is out of range.
   void validate() const;

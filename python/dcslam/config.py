@@ -28,6 +28,8 @@ class SlamConfig:
         rjc_b, rjc_p_good, rjc_p_fail: RJC (Paz et al. 2007, Alg. 3) parameters.
         seed: every random choice is reproducible from it.
         amortize: D&C spreads each join over the following steps (DESIGN.md §5).
+        threaded_joins: D&C runs joins on a background thread while mapping goes on
+            (same result as ``amortize``; uses a second core).
     """
 
     observation: str = "range_bearing"
@@ -41,6 +43,7 @@ class SlamConfig:
     rjc_p_fail: float = 0.01
     seed: int = 0
     amortize: bool = True
+    threaded_joins: bool = False
 
     def _to_core(self) -> "_core.SlamConfig":
         core = _core.SlamConfig()

@@ -1,0 +1,311 @@
+#include "dcslam/dc_slam.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+
+namespace dcslam {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point start) {
+  return std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+// A copy whose storage fits exactly: local maps keep capacity headroom while they grow,
+// finished ones do not need it.
+std::shared_ptr<const GaussianMap> compact_copy(const GaussianMap& map) {
+  auto copy = std::make_shared<GaussianMap>(GaussianMap::uninitialized(map.dim()));
+  copy->x() = map.x();
+  copy->P() = map.P();
+  copy->ids() = map.ids();
+  return copy;
+}
+
+Estimate to_estimate(const GaussianMap& map) {
+  Estimate estimate;
+  estimate.robot = map.robot();
+  const Eigen::Index n = map.num_features();
+  estimate.landmarks.resize(n, 2);
+  for (Eigen::Index k = 0; k < n; ++k) estimate.landmarks.row(k) = map.feature(k).transpose();
+  estimate.landmark_ids = map.ids();
+  estimate.covariance = map.P();
+  return estimate;
+}
+
+}  // namespace
+
+DCSlam::DCSlam(const SlamConfig& config) : config_(config) {
+  config_.validate();
+  local_ = std::make_unique<EkfSlam>(config_);
+  if (config_.threaded_joins) worker_ = std::thread([this] { worker_loop(); });
+}
+
+DCSlam::~DCSlam() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stopping_ = true;
+  }
+  work_ready_.notify_all();
+  if (worker_.joinable()) worker_.join();
+}
+
+JoinOptions DCSlam::join_options(int index) const {
+  JoinOptions options;
+  options.association = config_.join_association;
+  options.gate_confidence = config_.gate_confidence;
+  options.rjc_b = config_.rjc_b;
+  options.rjc_p_good = config_.rjc_p_good;
+  options.rjc_p_fail = config_.rjc_p_fail;
+  // One reproducible stream per join, whatever the order in which joins are run.
+  options.seed = config_.seed ^ (0x9E3779B97F4A7C15ULL * static_cast<std::uint64_t>(index + 1));
+  return options;
+}
+
+void DCSlam::begin_step() {
+  stats_.steps.emplace_back();
+  ++steps_;
+  ++local_map_steps_;
+}
+
+void DCSlam::end_step(double seconds) {
+  StepStats& step = stats_.steps.back();
+  step.seconds += seconds;
+  std::int64_t features = local_->map().num_features();
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const auto& node : stack_) features += node->expected_features;
+  step.num_features = features;
+}
+
+void DCSlam::predict(const Vec3& u, const Mat3& Q) {
+  const auto start = Clock::now();
+  local_->predict(u, Q);  // validates first: a bad call changes nothing
+  begin_step();
+  end_step(seconds_since(start));
+}
+
+std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::vector<Mat2>& R,
+                                         const std::vector<std::int64_t>* landmark_ids) {
+  const auto start = Clock::now();
+  std::vector<std::int64_t> ids = local_->update(z, R, landmark_ids);
+  if (stats_.steps.empty()) begin_step();  // measurements at the first pose, before any motion
+  const StepStats& local_step = local_->stats().steps.back();
+  StepStats& step = stats_.steps.back();
+  step.measurements += local_step.measurements;
+  step.paired += local_step.paired;
+  step.new_features += local_step.new_features;
+  step.rejected += local_step.rejected;
+  if (local_->map().num_features() >= config_.local_map_features) close_local_map();
+  if (config_.amortize && !config_.threaded_joins) run_amortized_budget();
+  end_step(seconds_since(start));
+  return ids;
+}
+
+void DCSlam::close_local_map() {
+  auto node = std::make_shared<Node>();
+  node->map = compact_copy(local_->map());
+  node->expected_features = node->map->num_features();
+  const std::int64_t next_id = local_->next_fresh_id();
+  local_ = std::make_unique<EkfSlam>(config_);
+  local_->set_next_fresh_id(next_id);
+  steps_in_closed_maps_ += local_map_steps_;
+  local_map_steps_ = 0;
+  ++closed_local_maps_;
+  push_and_merge(std::move(node));
+  if (!config_.amortize && !config_.threaded_joins) {
+    for (const auto& task : queue_) work_on(*task, std::numeric_limits<std::int64_t>::max());
+    queue_.clear();
+  }
+}
+
+// The paper's Algorithm 2: while the new map is at least as big as the top of the stack, pop
+// and join. Joins are only queued here; who runs them depends on the mode.
+void DCSlam::push_and_merge(std::shared_ptr<Node> node) {
+  std::unique_lock<std::mutex> lock(mutex_);
+  const double steps_per_local_map =
+      static_cast<double>(steps_in_closed_maps_) / static_cast<double>(closed_local_maps_);
+  while (!stack_.empty() && node->leaves >= stack_.back()->leaves) {
+    auto task = std::make_shared<JoinTask>();
+    task->index = joins_created_++;
+    task->left = stack_.back();
+    stack_.pop_back();
+    task->right = std::move(node);
+    task->result = std::make_shared<Node>();
+    task->result->leaves = task->left->leaves + task->right->leaves;
+    task->result->expected_features =
+        task->left->expected_features + task->right->expected_features;
+    task->result->task = task;
+    // The result is next needed when as many local maps again have been closed; finishing
+    // within half that time leaves the other half for the joins that will wait on it.
+    task->deadline_step =
+        steps_ + std::max<std::int64_t>(1, static_cast<std::int64_t>(
+                                               0.5 * task->result->leaves * steps_per_local_map));
+    JoinEvent event;
+    event.index = task->index;
+    event.leaves = task->result->leaves;
+    event.step_created = steps_;
+    events_.push_back(event);
+    queue_.push_back(task);
+    node = task->result;
+  }
+  stack_.push_back(std::move(node));
+  lock.unlock();
+  work_ready_.notify_all();
+}
+
+void DCSlam::run_amortized_budget() {
+  if (queue_.empty()) return;
+  double budget = 0.0;
+  for (const auto& task : queue_) {
+    const std::int64_t remaining =
+        task->join ? task->join->remaining_work()
+                   : static_cast<std::int64_t>(3 + 2 * task->result->expected_features) *
+                         (3 + 2 * task->result->expected_features);
+    budget += static_cast<double>(remaining) /
+              static_cast<double>(std::max<std::int64_t>(1, task->deadline_step - steps_));
+  }
+  auto left = static_cast<std::int64_t>(std::ceil(budget));
+  while (left > 0 && !queue_.empty()) {
+    JoinTask& task = *queue_.front();
+    left -= work_on(task, left);
+    if (task.join && !task.join->done()) break;
+    queue_.pop_front();
+  }
+}
+
+std::int64_t DCSlam::work_on(JoinTask& task, std::int64_t budget) {
+  if (!task.join) {
+    task.join = std::make_unique<MapJoin>(task.left->map, task.right->map,
+                                          join_options(task.index));
+  }
+  const std::int64_t spent = task.join->advance(budget);
+  if (task.join->done()) complete(task);
+  return spent;
+}
+
+void DCSlam::complete(JoinTask& task) {
+  auto map = std::make_shared<const GaussianMap>(task.join->take_result());
+  std::lock_guard<std::mutex> lock(mutex_);
+  JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
+  event.report = task.join->report();
+  event.step_finished = steps_;
+  for (const auto& [from, to] : task.join->merged_ids()) {
+    if (from != to) merged_into_[from] = to;
+  }
+  task.result->map = std::move(map);
+  task.result->expected_features = task.result->map->num_features();
+  task.result->task.reset();
+  task.left.reset();
+  task.right.reset();
+}
+
+void DCSlam::worker_loop() {
+  for (;;) {
+    std::shared_ptr<JoinTask> task;
+    {
+      std::unique_lock<std::mutex> lock(mutex_);
+      work_ready_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
+      if (stopping_) return;
+      task = queue_.front();
+      worker_busy_ = true;
+    }
+    work_on(*task, std::numeric_limits<std::int64_t>::max());
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      queue_.pop_front();
+      worker_busy_ = false;
+    }
+    work_done_.notify_all();
+  }
+}
+
+void DCSlam::finish_joins() {
+  if (config_.threaded_joins) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    work_done_.wait(lock, [this] { return queue_.empty() && !worker_busy_; });
+    return;
+  }
+  while (!queue_.empty()) {
+    work_on(*queue_.front(), std::numeric_limits<std::int64_t>::max());
+    queue_.pop_front();
+  }
+}
+
+std::shared_ptr<const GaussianMap> DCSlam::materialize(const std::shared_ptr<Node>& node) const {
+  std::shared_ptr<Node> left, right;
+  int index = 0;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (node->map) return node->map;
+    left = node->task->left;
+    right = node->task->right;
+    index = node->task->index;
+  }
+  // Same inputs and options as the real join: the same result, computed on the side.
+  MapJoin join(materialize(left), materialize(right), join_options(index));
+  join.finish();
+  return std::make_shared<const GaussianMap>(join.take_result());
+}
+
+Estimate DCSlam::estimate() const {
+  std::vector<std::shared_ptr<Node>> stack;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stack = stack_;
+  }
+  std::shared_ptr<const GaussianMap> joined = compact_copy(local_->map());
+  // Join everything on the stack, top first, as Algorithm 2 does at the end of the run.
+  for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
+    const int index = -1 - static_cast<int>(it - stack.rbegin());
+    MapJoin join(materialize(*it), joined, join_options(index));
+    join.finish();
+    joined = std::make_shared<const GaussianMap>(join.take_result());
+  }
+  return to_estimate(*joined);
+}
+
+Vec3 DCSlam::node_robot(const Node& node) const {
+  if (node.map) return node.map->robot();
+  return compose(node_robot(*node.task->left), node_robot(*node.task->right));
+}
+
+Vec3 DCSlam::pose() const {
+  Vec3 pose = Vec3::Zero();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const auto& node : stack_) pose = compose(pose, node_robot(*node));
+  }
+  return compose(pose, local_->map().robot());
+}
+
+std::vector<std::int64_t> DCSlam::resolve(const std::vector<std::int64_t>& ids) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<std::int64_t> resolved;
+  resolved.reserve(ids.size());
+  for (std::int64_t id : ids) {
+    for (auto it = merged_into_.find(id); it != merged_into_.end(); it = merged_into_.find(id)) {
+      id = it->second;
+    }
+    resolved.push_back(id);
+  }
+  return resolved;
+}
+
+const RunStats& DCSlam::stats() const { return stats_; }
+
+std::vector<JoinEvent> DCSlam::joins() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return events_;
+}
+
+std::vector<std::pair<int, std::int64_t>> DCSlam::stack_shape() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<std::pair<int, std::int64_t>> shape;
+  for (const auto& node : stack_) shape.emplace_back(node->leaves, node->expected_features);
+  return shape;
+}
+
+}  // namespace dcslam

@@ -1,0 +1,115 @@
+#pragma once
+// Divide and Conquer SLAM (DESIGN.md §5; Paz et al. 2007, Algorithm 2). Local maps are built
+// with the sparse-aware EKF, closed at `local_map_features` features, and joined as a binary
+// tree in post-order with a stack. Joins run in one of three ways with bitwise the same
+// result:
+//  - immediate: a join runs as soon as its two inputs exist;
+//  - amortized (`amortize`): joins are queued and every step spends a work budget on them, so
+//    that each step costs O(n) (the paper's Fig. 3, bottom row);
+//  - threaded (`threaded_joins`): a worker thread runs the queued joins while the front end
+//    keeps mapping.
+//
+// Decisions (docs/divide_and_conquer.md): the stack compares map sizes by the number of local
+// maps they hold (a binary counter, deterministic whatever the join timing; equal to the
+// paper's feature count for exploration), and the amortized budget of a step is
+// Σ remaining_work / steps_left over the queued joins, where a join's deadline is half the
+// time until its result is next needed.
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <memory>
+#include <mutex>
+#include <thread>
+#include <unordered_map>
+#include <vector>
+
+#include "dcslam/config.hpp"
+#include "dcslam/ekf_slam.hpp"
+#include "dcslam/map_joining.hpp"
+#include "dcslam/slam_filter.hpp"
+
+namespace dcslam {
+
+struct JoinEvent {
+  int index = 0;         // joins in creation order
+  int leaves = 0;        // local maps in the joined map
+  std::int64_t step_created = 0;
+  std::int64_t step_finished = -1;  // -1 while pending
+  JoinReport report;
+};
+
+class DCSlam : public SlamFilter {
+ public:
+  explicit DCSlam(const SlamConfig& config);
+  ~DCSlam() override;
+  DCSlam(const DCSlam&) = delete;
+  DCSlam& operator=(const DCSlam&) = delete;
+
+  void predict(const Vec3& u, const Mat3& Q) override;
+  std::vector<std::int64_t> update(const MeasurementsRef& z, const std::vector<Mat2>& R,
+                                   const std::vector<std::int64_t>* landmark_ids) override;
+  Estimate estimate() const override;
+  Vec3 pose() const override;
+  std::vector<std::int64_t> resolve(const std::vector<std::int64_t>& ids) const override;
+  const RunStats& stats() const override;
+
+  // Join events so far (pending ones have step_finished == -1).
+  std::vector<JoinEvent> joins() const;
+  // The stack's shape, bottom first: local maps held by each map, and its feature count
+  // (expected count for a pending join: the sum of its inputs).
+  std::vector<std::pair<int, std::int64_t>> stack_shape() const;
+  // Blocks until every queued join is done (threaded mode) or runs them (other modes).
+  void finish_joins();
+  const SlamConfig& config() const { return config_; }
+
+ private:
+  struct JoinTask;
+  struct Node {
+    int leaves = 1;
+    std::int64_t expected_features = 0;
+    std::shared_ptr<const GaussianMap> map;  // set once complete
+    std::shared_ptr<JoinTask> task;          // set while pending
+  };
+  struct JoinTask {
+    int index = 0;
+    std::shared_ptr<Node> left, right, result;
+    std::unique_ptr<MapJoin> join;
+    std::int64_t deadline_step = 0;
+  };
+
+  void close_local_map();
+  void push_and_merge(std::shared_ptr<Node> node);
+  void run_amortized_budget();
+  // Advances `task` by up to `budget`; returns work done. Completes the node when finished.
+  std::int64_t work_on(JoinTask& task, std::int64_t budget);
+  void complete(JoinTask& task);
+  void worker_loop();
+  JoinOptions join_options(int index) const;
+  // The map of `node`, computing pending joins on copies (never touching the real tasks).
+  std::shared_ptr<const GaussianMap> materialize(const std::shared_ptr<Node>& node) const;
+  Vec3 node_robot(const Node& node) const;
+  void begin_step();
+  void end_step(double seconds);
+
+  SlamConfig config_;
+  std::unique_ptr<EkfSlam> local_;
+  std::int64_t local_map_steps_ = 0;
+  std::int64_t steps_ = 0;
+  std::int64_t closed_local_maps_ = 0;
+  std::int64_t steps_in_closed_maps_ = 0;
+  int joins_created_ = 0;
+
+  mutable std::mutex mutex_;  // guards the stack, tasks, events and aliases (threaded mode)
+  std::condition_variable work_ready_, work_done_;
+  std::vector<std::shared_ptr<Node>> stack_;
+  std::deque<std::shared_ptr<JoinTask>> queue_;
+  std::vector<JoinEvent> events_;
+  std::unordered_map<std::int64_t, std::int64_t> merged_into_;
+  bool stopping_ = false;
+  bool worker_busy_ = false;
+  std::thread worker_;
+
+  RunStats stats_;
+};
+
+}  // namespace dcslam
