@@ -1,0 +1,278 @@
+#include "dcslam/ekf_slam.hpp"
+
+#include <algorithm>
+#include <string>
+
+#include <Eigen/Cholesky>
+
+#include "dcslam/errors.hpp"
+#include "dcslam/input_checks.hpp"
+#include "dcslam/observation.hpp"
+
+namespace dcslam {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+const Mat2& covariance_of(const std::vector<Mat2>& R, std::size_t measurement) {
+  return R.size() == 1 ? R[0] : R[measurement];
+}
+
+// Inputs pass a relative symmetry test only; the filter uses their symmetric part so that P
+// stays exactly symmetric.
+template <typename Matrix>
+Matrix symmetric_part(const Matrix& A) {
+  return 0.5 * (A + A.transpose());
+}
+
+}  // namespace
+
+EkfSlam::EkfSlam(const SlamConfig& config) : config_(config) {
+  config_.validate();
+  if (config_.association != Association::Known) {
+    throw InvalidArgument(std::string("SlamConfig.association: '") +
+                          to_string(config_.association) +
+                          "' is not implemented yet in EkfSlam (use 'known')");
+  }
+}
+
+StepStats& EkfSlam::current_step() {
+  // An update before any predict belongs to an implicit first step.
+  if (stats_.steps.empty()) stats_.steps.emplace_back();
+  return stats_.steps.back();
+}
+
+void EkfSlam::finish_timing(Clock::time_point start) {
+  StepStats& step = current_step();
+  step.num_features = map_.num_features();
+  step.seconds += std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+void EkfSlam::predict(const Vec3& u, const Mat3& Q) {
+  check_motion(u, Q, "predict");
+  const auto start = Clock::now();
+  stats_.steps.emplace_back();
+  ++stats_.counters["predicts"];
+
+  Mat3 F, G;
+  const Vec3 robot = compose(map_.robot(), u, &F, &G);
+  auto P = map_.P();
+  const Mat3 P_RR = F * P.topLeftCorner<3, 3>() * F.transpose() + G * symmetric_part(Q) * G.transpose();
+  P.topLeftCorner<3, 3>() = symmetric_part(P_RR);
+  // P_RM <- F P_RM and its mirror: one pass over the robot's rows and columns, O(n).
+  for (Index j = GaussianMap::kRobotDim; j < map_.dim(); ++j) {
+    const Vec3 column = F * P.block<3, 1>(0, j);
+    P.block<3, 1>(0, j) = column;
+    P.block<1, 3>(j, 0) = column.transpose();
+  }
+  map_.x().head<3>() = robot;
+  finish_timing(start);
+}
+
+std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::vector<Mat2>& R,
+                                          const std::vector<std::int64_t>* landmark_ids) {
+  check_measurements(z, R, landmark_ids, config_.observation, config_.association, "update");
+  const auto start = Clock::now();
+  const auto m = static_cast<std::size_t>(z.rows());
+
+  associate(z, R, landmark_ids);
+  update_paired(z, R);
+
+  // New features come from the robot as updated by the paired measurements (DESIGN.md §3).
+  std::vector<std::int64_t> assigned(m, -1);
+  StepStats& step = current_step();
+  step.measurements += static_cast<int>(m);
+  for (std::size_t i = 0; i < m; ++i) {
+    const Index decision = pairing_[i];
+    if (decision >= 0) {
+      assigned[i] = map_.ids()[static_cast<std::size_t>(decision)];
+      ++step.paired;
+    } else if (decision == kNewFeature) {
+      const std::int64_t id = landmark_ids ? (*landmark_ids)[i] : next_fresh_id_++;
+      const Index index =
+          add_feature(z.row(static_cast<Index>(i)).transpose(), covariance_of(R, i), id);
+      index_of_id_[id] = index;
+      assigned[i] = id;
+      ++step.new_features;
+    } else {
+      ++step.rejected;
+    }
+  }
+  ++stats_.counters["updates"];
+  finish_timing(start);
+  return assigned;
+}
+
+void EkfSlam::associate(const MeasurementsRef& z, const std::vector<Mat2>& /*R*/,
+                        const std::vector<std::int64_t>* landmark_ids) {
+  pairing_.assign(static_cast<std::size_t>(z.rows()), kRejected);
+  switch (config_.association) {
+    case Association::Known:
+      associate_known(*landmark_ids);  // check_measurements guarantees the ids in this mode
+      return;
+    case Association::NearestNeighbour:
+    case Association::Jcbb:
+      // Unreachable: the constructor refuses these modes until they are implemented.
+      throw InvalidArgument(std::string("SlamConfig.association: '") +
+                            to_string(config_.association) + "' is not implemented yet");
+  }
+}
+
+void EkfSlam::associate_known(const std::vector<std::int64_t>& landmark_ids) {
+  for (std::size_t i = 0; i < landmark_ids.size(); ++i) {
+    const std::int64_t id = landmark_ids[i];
+    if (id == -1) continue;  // the caller's "not a landmark" (e.g. simulator clutter)
+    const auto found = index_of_id_.find(id);
+    pairing_[i] = found == index_of_id_.end() ? kNewFeature : found->second;
+  }
+}
+
+void EkfSlam::ensure_workspace(Index rows, Index measurement_rows) {
+  if (PHt_.rows() < rows || PHt_.cols() < measurement_rows) {
+    // Sized by the map's capacity so that it reallocates only when the map does.
+    PHt_.resize(std::max(rows, map_.capacity()), std::max(measurement_rows, 2 * PHt_.cols()));
+  }
+  if (S_.rows() < measurement_rows) {
+    S_.resize(PHt_.cols(), PHt_.cols());
+    innovation_.resize(PHt_.cols());
+  }
+}
+
+void EkfSlam::update_paired(const MeasurementsRef& z, const std::vector<Mat2>& R) {
+  paired_measurements_.clear();
+  for (std::size_t i = 0; i < pairing_.size(); ++i) {
+    if (pairing_[i] >= 0) paired_measurements_.push_back(static_cast<Index>(i));
+  }
+  const auto k = static_cast<Index>(paired_measurements_.size());
+  if (k == 0) return;
+  const Index n = map_.dim();
+  const Index rows = 2 * k;
+  ensure_workspace(n, rows);
+  H_robot_.resize(static_cast<std::size_t>(k));
+  H_feature_.resize(static_cast<std::size_t>(k));
+
+  auto P = map_.P();
+  auto PHt = PHt_.topLeftCorner(n, rows);
+  auto S = S_.topLeftCorner(rows, rows);
+  auto nu = innovation_.head(rows);
+  const Vec3 robot = map_.robot();
+
+  // P H' = P[:,R] H_R' + sum P[:,f] H_f': O(n k), H is never formed.
+  for (Index a = 0; a < k; ++a) {
+    const auto i = static_cast<std::size_t>(paired_measurements_[static_cast<std::size_t>(a)]);
+    const Index feature = pairing_[i];
+    const Index offset = GaussianMap::feature_offset(feature);
+    Mat23& H_R = H_robot_[static_cast<std::size_t>(a)];
+    Mat2& H_f = H_feature_[static_cast<std::size_t>(a)];
+    const Vec2 z_hat =
+        observe(config_.observation, config_.sensor_offset, robot, map_.feature(feature), &H_R, &H_f);
+    nu.segment<2>(2 * a) =
+        innovation(config_.observation, z.row(static_cast<Index>(i)).transpose(), z_hat);
+    PHt.middleCols<2>(2 * a).noalias() = P.leftCols<3>() * H_R.transpose();
+    PHt.middleCols<2>(2 * a).noalias() += P.middleCols<2>(offset) * H_f.transpose();
+  }
+  // S = H (P H') + R, row block by row block.
+  for (Index a = 0; a < k; ++a) {
+    const auto i = static_cast<std::size_t>(paired_measurements_[static_cast<std::size_t>(a)]);
+    const Index offset = GaussianMap::feature_offset(pairing_[i]);
+    S.middleRows<2>(2 * a).noalias() = H_robot_[static_cast<std::size_t>(a)] * PHt.topRows<3>();
+    S.middleRows<2>(2 * a).noalias() += H_feature_[static_cast<std::size_t>(a)] * PHt.middleRows<2>(offset);
+    S.block<2, 2>(2 * a, 2 * a) += symmetric_part(covariance_of(R, i));
+  }
+
+  // In-place Cholesky S = L L' (reads the lower triangle only).
+  Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> cholesky(S);
+  if (cholesky.info() != Eigen::Success) {
+    throw InvalidArgument(
+        "update: the innovation covariance is not positive definite (state left unchanged)");
+  }
+  // W = P H' L^-T and L^-1 nu, both in place: then K nu = W (L^-1 nu) and K S K' = W W'.
+  cholesky.matrixU().solveInPlace<Eigen::OnTheRight>(PHt);
+  cholesky.matrixL().solveInPlace(nu);
+
+  map_.x().noalias() += PHt * nu;
+  map_.x()(2) = wrap_angle(map_.x()(2));
+  // The one O(n^2) line: P -= W W' on the lower triangle (a symmetric rank-2k update), then
+  // one blocked copy onto the upper triangle.
+  P.selfadjointView<Eigen::Lower>().rankUpdate(PHt, -1.0);
+  mirror_lower_triangle();
+}
+
+void EkfSlam::mirror_lower_triangle() {
+  auto P = map_.P();
+  const Index n = P.rows();
+  // Square tiles keep both the read (column-major, lower) and the write (upper) cache-friendly.
+  constexpr Index kTile = 64;
+  for (Index j0 = 0; j0 < n; j0 += kTile) {
+    const Index width = std::min(kTile, n - j0);
+    for (Index j = j0; j < j0 + width; ++j) {
+      for (Index i = j0; i < j; ++i) P(i, j) = P(j, i);
+    }
+    for (Index i0 = j0 + width; i0 < n; i0 += kTile) {
+      const Index height = std::min(kTile, n - i0);
+      P.block(j0, i0, width, height) = P.block(i0, j0, height, width).transpose();
+    }
+  }
+}
+
+EkfSlam::Index EkfSlam::add_feature(const Vec2& z, const Mat2& R, std::int64_t id) {
+  Mat23 G_R;
+  Mat2 G_z;
+  const Vec2 feature =
+      inverse_observe(config_.observation, config_.sensor_offset, map_.robot(), z, &G_R, &G_z);
+  const Index offset = map_.dim();
+  const Index index = map_.append_feature(feature, id);
+  auto P = map_.P();
+  // P_f* = G_R P_R*: O(n).
+  for (Index j = 0; j < offset; ++j) {
+    const Vec2 column = G_R * P.block<3, 1>(0, j);
+    P.block<2, 1>(offset, j) = column;
+    P.block<1, 2>(j, offset) = column.transpose();
+  }
+  const Mat2 P_ff = G_R * P.topLeftCorner<3, 3>() * G_R.transpose() +
+                    G_z * symmetric_part(R) * G_z.transpose();
+  P.block<2, 2>(offset, offset) = symmetric_part(P_ff);
+  return index;
+}
+
+Estimate EkfSlam::estimate() const {
+  Estimate estimate;
+  estimate.robot = map_.robot();
+  const Index n = map_.num_features();
+  estimate.landmarks.resize(n, 2);
+  for (Index k = 0; k < n; ++k) estimate.landmarks.row(k) = map_.feature(k).transpose();
+  estimate.landmark_ids = map_.ids();
+  estimate.covariance = map_.P();
+  return estimate;
+}
+
+std::vector<std::int64_t> EkfSlam::resolve(const std::vector<std::int64_t>& ids) const {
+  return ids;
+}
+
+GaussianMap EkfSlam::take_map() {
+  GaussianMap taken = std::move(map_);
+  map_ = GaussianMap();
+  index_of_id_.clear();
+  return taken;
+}
+
+std::vector<std::vector<std::int64_t>> run_steps(SlamFilter& filter,
+                                                 const std::vector<SlamStep>& steps) {
+  std::vector<std::vector<std::int64_t>> assigned;
+  assigned.reserve(steps.size());
+  for (std::size_t s = 0; s < steps.size(); ++s) {
+    const SlamStep& step = steps[s];
+    try {
+      filter.predict(step.u, step.Q);
+      assigned.push_back(
+          filter.update(step.z, step.R, step.has_landmark_ids ? &step.landmark_ids : nullptr));
+    } catch (const InvalidArgument& error) {
+      throw InvalidArgument("run_steps: step " + std::to_string(s) + ": " + error.what());
+    }
+  }
+  return assigned;
+}
+
+}  // namespace dcslam

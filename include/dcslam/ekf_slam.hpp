@@ -1,0 +1,101 @@
+#pragma once
+// The sparse-aware EKF SLAM of DESIGN.md §3: one stochastic map (x, P) in the frame of the
+// first pose, predicted and updated in O(n) per step except the one O(n^2) covariance update,
+// done as a single symmetric rank-k update. It is both the baseline filter (dcslam.EkfSlam)
+// and the builder of DCSlam's local maps.
+#include <chrono>
+#include <cstdint>
+#include <unordered_map>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "dcslam/config.hpp"
+#include "dcslam/gaussian_map.hpp"
+#include "dcslam/slam_filter.hpp"
+
+namespace dcslam {
+
+class EkfSlam : public SlamFilter {
+ public:
+  using Index = Eigen::Index;
+
+  // Outcome of data association for one measurement: a feature index (>= 0) or one of these.
+  static constexpr Index kNewFeature = -1;
+  static constexpr Index kRejected = -2;
+
+  // Validates the config. Association modes "nn" and "jcbb" are not implemented yet and
+  // throw InvalidArgument (see associate()).
+  explicit EkfSlam(const SlamConfig& config);
+
+  void predict(const Vec3& u, const Mat3& Q) override;
+  std::vector<std::int64_t> update(const MeasurementsRef& z, const std::vector<Mat2>& R,
+                                   const std::vector<std::int64_t>* landmark_ids) override;
+  Estimate estimate() const override;
+  Vec3 pose() const override { return map_.robot(); }
+  // EKF features never merge: the identity (-1 stays -1).
+  std::vector<std::int64_t> resolve(const std::vector<std::int64_t>& ids) const override;
+  const RunStats& stats() const override { return stats_; }
+
+  const SlamConfig& config() const { return config_; }
+  const GaussianMap& map() const { return map_; }
+  // Hands the map over (D&C closing a local map) and restarts this filter as a fresh one at
+  // the origin of a new base frame. Stats and the fresh-id counter carry on.
+  GaussianMap take_map();
+
+  // Ids given to features started in modes without landmark ids ("nn", "jcbb"). D&C shares
+  // one id space across local maps by passing the counter from one filter to the next.
+  std::int64_t next_fresh_id() const { return next_fresh_id_; }
+  void set_next_fresh_id(std::int64_t id) { next_fresh_id_ = id; }
+
+ private:
+  // Fills pairing_ (one entry per measurement: feature index, kNewFeature or kRejected).
+  // The seam for data association: "known" looks ids up; "nn"/"jcbb" will plug in here
+  // (implemented in their own files) reading map_, z, R and config_.
+  void associate(const MeasurementsRef& z, const std::vector<Mat2>& R,
+                 const std::vector<std::int64_t>* landmark_ids);
+  void associate_known(const std::vector<std::int64_t>& landmark_ids);
+
+  // Joint EKF update with the measurements paired in pairing_.
+  void update_paired(const MeasurementsRef& z, const std::vector<Mat2>& R);
+  // Appends measurement i as a feature initialised from the current robot; returns its index.
+  Index add_feature(const Vec2& z, const Mat2& R, std::int64_t id);
+  // Copies the lower triangle of P onto the upper one.
+  void mirror_lower_triangle();
+  void ensure_workspace(Index rows, Index measurement_rows);
+  StepStats& current_step();
+  void finish_timing(std::chrono::steady_clock::time_point start);
+
+  SlamConfig config_;
+  GaussianMap map_;
+  std::unordered_map<std::int64_t, Index> index_of_id_;
+  std::int64_t next_fresh_id_ = 0;
+  RunStats stats_;
+
+  // Workspaces kept across steps so that the hot path does not allocate; they only grow.
+  std::vector<Index> pairing_;
+  std::vector<Index> paired_measurements_;
+  Eigen::MatrixXd PHt_;         // P H' (n x 2k), becomes W = P H' L^-T in place
+  Eigen::MatrixXd S_;           // innovation covariance (2k x 2k), becomes its Cholesky factor
+  Eigen::VectorXd innovation_;  // nu (2k), becomes L^-1 nu in place
+  std::vector<Mat23> H_robot_;
+  std::vector<Mat2> H_feature_;
+};
+
+// One step of a recorded run: the predict input, then the scan (ids only in "known" mode).
+struct SlamStep {
+  Vec3 u = Vec3::Zero();
+  Mat3 Q = Mat3::Zero();
+  MeasurementMatrix z;
+  std::vector<Mat2> R;
+  std::vector<std::int64_t> landmark_ids;
+  bool has_landmark_ids = false;
+};
+
+// Runs a whole sequence (predict + update per step) in one call, for benchmarks. Returns the
+// ids of every update. Stops at the first invalid step, throwing InvalidArgument that names
+// the step; earlier steps stay applied.
+std::vector<std::vector<std::int64_t>> run_steps(SlamFilter& filter,
+                                                 const std::vector<SlamStep>& steps);
+
+}  // namespace dcslam
