@@ -61,6 +61,8 @@ class DCSlam : public SlamFilter {
   // Blocks until every queued join is done (threaded mode) or runs them (other modes).
   void finish_joins();
   const SlamConfig& config() const { return config_; }
+  // The local map being built (base: the robot pose where it started).
+  const EkfSlam& local_map() const { return *local_; }
 
  private:
   struct JoinTask;

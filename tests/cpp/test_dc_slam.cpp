@@ -1,0 +1,204 @@
+#include <cmath>
+#include <map>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "dcslam/dc_slam.hpp"
+#include "dcslam/ekf_slam.hpp"
+
+namespace dcslam {
+namespace {
+
+using Index = Eigen::Index;
+
+// A linear-Gaussian run (DESIGN.md §4): Cartesian point observations and a known heading
+// (zero heading variance), so the EKF and D&C must agree exactly. The robot drives a
+// rounded square loop twice over a grid of landmarks, closing the loop.
+std::vector<SlamStep> linear_gaussian_run(int steps, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal;
+  std::vector<Vec2> landmarks;
+  for (int i = -2; i <= 12; ++i)
+    for (int j = -2; j <= 12; ++j) landmarks.emplace_back(1.5 * i + 0.3 * j, 1.5 * j);
+  const Mat3 Q = Vec3(0.02, 0.01, 0.0).asDiagonal();
+  const Mat2 R = Vec2(0.03, 0.05).asDiagonal();
+  Vec3 truth = Vec3::Zero();
+  std::vector<SlamStep> run;
+  for (int k = 0; k < steps; ++k) {
+    SlamStep step;
+    const bool turn = (k % 15) == 14;
+    const Vec3 u_true(1.0, 0.0, turn ? 1.5707963267948966 : 0.0);
+    truth = compose(truth, u_true);
+    step.u = u_true + Vec3(std::sqrt(Q(0, 0)) * normal(rng), std::sqrt(Q(1, 1)) * normal(rng), 0.0);
+    step.Q = Q;
+    std::vector<Vec2> z;
+    for (std::size_t id = 0; id < landmarks.size(); ++id) {
+      const Vec2 local = inverse_transform_point(truth, landmarks[id]);
+      if (local.norm() > 3.0) continue;
+      z.push_back(local + Vec2(std::sqrt(R(0, 0)) * normal(rng), std::sqrt(R(1, 1)) * normal(rng)));
+      step.landmark_ids.push_back(static_cast<std::int64_t>(id));
+    }
+    step.z.resize(static_cast<Index>(z.size()), 2);
+    for (std::size_t i = 0; i < z.size(); ++i) step.z.row(static_cast<Index>(i)) = z[i].transpose();
+    step.R = {R};
+    step.has_landmark_ids = true;
+    run.push_back(std::move(step));
+  }
+  return run;
+}
+
+SlamConfig linear_config(int local_map_features) {
+  SlamConfig config;
+  config.observation = ObservationModel::Point;
+  config.association = Association::Known;
+  config.join_association = JoinAssociation::Known;
+  config.local_map_features = local_map_features;
+  return config;
+}
+
+// Max |a - b| relative to max |b| over state and covariance, matching features by id.
+double relative_difference(const Estimate& a, const Estimate& b) {
+  std::map<std::int64_t, Index> index_in_a;
+  for (std::size_t k = 0; k < a.landmark_ids.size(); ++k) index_in_a[a.landmark_ids[k]] = static_cast<Index>(k);
+  EXPECT_EQ(a.landmark_ids.size(), b.landmark_ids.size());
+  std::vector<Index> order = {0, 1, 2};  // b's state order, in a's indices
+  for (std::int64_t id : b.landmark_ids) {
+    const Index k = index_in_a.at(id);
+    order.push_back(3 + 2 * k);
+    order.push_back(4 + 2 * k);
+  }
+  Eigen::VectorXd xa(order.size()), xb(order.size());
+  xb << b.robot, Eigen::Map<const Eigen::VectorXd>(b.landmarks.data(), b.landmarks.size());
+  Eigen::VectorXd xa_full(a.covariance.rows());
+  xa_full << a.robot, Eigen::Map<const Eigen::VectorXd>(a.landmarks.data(), a.landmarks.size());
+  double dx = 0, dP = 0;
+  for (std::size_t i = 0; i < order.size(); ++i) {
+    dx = std::max(dx, std::abs(xa_full(order[i]) - xb(static_cast<Index>(i))));
+    for (std::size_t j = 0; j < order.size(); ++j) {
+      dP = std::max(dP, std::abs(a.covariance(order[i], order[j]) -
+                                 b.covariance(static_cast<Index>(i), static_cast<Index>(j))));
+    }
+  }
+  return std::max(dx / xb.cwiseAbs().maxCoeff(), dP / b.covariance.cwiseAbs().maxCoeff());
+}
+
+Estimate run_ekf(const std::vector<SlamStep>& run) {
+  EkfSlam ekf(linear_config(1));
+  run_steps(ekf, run);
+  return ekf.estimate();
+}
+
+enum class Mode { Immediate, Amortized, Threaded };
+
+SlamConfig mode_config(int p, Mode mode) {
+  SlamConfig config = linear_config(p);
+  config.amortize = mode == Mode::Amortized;
+  config.threaded_joins = mode == Mode::Threaded;
+  return config;
+}
+
+struct DcCase {
+  int local_map_features;
+  Mode mode;
+};
+
+class DcSlamLinear : public ::testing::TestWithParam<DcCase> {};
+
+TEST_P(DcSlamLinear, EqualsEkfExactly) {
+  const auto run = linear_gaussian_run(130, 3);
+  const Estimate ekf = run_ekf(run);
+  DCSlam dc(mode_config(GetParam().local_map_features, GetParam().mode));
+  run_steps(dc, run);
+  const Estimate est = dc.estimate();
+  EXPECT_GT(ekf.landmark_ids.size(), 60u);
+  EXPECT_LT(relative_difference(est, ekf), 1e-9);
+  EXPECT_GT(dc.joins().size(), 2u);
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    LocalMapSizes, DcSlamLinear,
+    ::testing::Values(DcCase{4, Mode::Immediate}, DcCase{10, Mode::Immediate},
+                      DcCase{25, Mode::Immediate}, DcCase{4, Mode::Amortized},
+                      DcCase{10, Mode::Amortized}, DcCase{25, Mode::Amortized},
+                      DcCase{4, Mode::Threaded}, DcCase{10, Mode::Threaded},
+                      DcCase{25, Mode::Threaded}));
+
+class DcSlamAnytime : public ::testing::TestWithParam<Mode> {};
+
+TEST_P(DcSlamAnytime, EstimateMatchesEkfAtAnyStepWithoutDisturbingTheRun) {
+  const Mode mode = GetParam();
+  const auto run = linear_gaussian_run(60, 11);
+  EkfSlam ekf(linear_config(1));
+  DCSlam dc(mode_config(6, mode));
+  DCSlam undisturbed(mode_config(6, mode));
+  int exact_pose_checks = 0;
+  for (std::size_t k = 0; k < run.size(); ++k) {
+    const std::vector<SlamStep> one(run.begin() + static_cast<std::ptrdiff_t>(k),
+                                    run.begin() + static_cast<std::ptrdiff_t>(k) + 1);
+    run_steps(ekf, one);
+    run_steps(dc, one);
+    run_steps(undisturbed, one);
+    if (k % 7 == 0) {
+      EXPECT_LT(relative_difference(dc.estimate(), ekf.estimate()), 1e-9) << k;
+    }
+    // With one map on the stack and a local map just opened at the robot, the cheap pose
+    // involves no pending join: it must be the EKF's pose.
+    if (mode == Mode::Immediate && dc.stack_shape().size() == 1 &&
+        dc.local_map().map().robot().isZero() && !dc.joins().empty()) {
+      EXPECT_LT((dc.pose() - ekf.pose()).cwiseAbs().maxCoeff(), 1e-9) << k;
+      ++exact_pose_checks;
+    }
+  }
+  if (mode == Mode::Immediate) {
+    EXPECT_GE(exact_pose_checks, 2);
+  }
+  undisturbed.finish_joins();
+  dc.finish_joins();
+  const Estimate a = dc.estimate(), b = undisturbed.estimate();
+  EXPECT_TRUE((a.covariance.array() == b.covariance.array()).all());
+}
+
+INSTANTIATE_TEST_SUITE_P(Modes, DcSlamAnytime,
+                         ::testing::Values(Mode::Immediate, Mode::Amortized, Mode::Threaded));
+
+TEST(DcSlam, ImmediateAmortizedAndThreadedAreBitwiseIdentical) {
+  const auto run = linear_gaussian_run(150, 5);
+  std::vector<Estimate> results;
+  for (Mode mode : {Mode::Immediate, Mode::Amortized, Mode::Threaded}) {
+    DCSlam dc(mode_config(8, mode));
+    run_steps(dc, run);
+    dc.finish_joins();
+    results.push_back(dc.estimate());
+    if (mode == Mode::Amortized) {
+      // Joins really were spread out: at least one finished after the step it was created in.
+      bool spread = false;
+      for (const JoinEvent& e : dc.joins()) spread |= e.step_finished > e.step_created;
+      EXPECT_TRUE(spread);
+    }
+  }
+  for (std::size_t m = 1; m < results.size(); ++m) {
+    EXPECT_TRUE((results[m].covariance.array() == results[0].covariance.array()).all());
+    EXPECT_EQ(results[m].landmark_ids, results[0].landmark_ids);
+    EXPECT_TRUE((results[m].robot.array() == results[0].robot.array()).all());
+  }
+}
+
+TEST(DcSlam, StackFollowsAlgorithm2) {
+  const auto run = linear_gaussian_run(130, 3);
+  DCSlam dc(mode_config(5, Mode::Immediate));
+  run_steps(dc, run);
+  // Binary counter: the stack's leaf counts are distinct powers of two, decreasing upwards.
+  const auto shape = dc.stack_shape();
+  ASSERT_FALSE(shape.empty());
+  for (std::size_t i = 0; i < shape.size(); ++i) {
+    const int leaves = shape[i].first;
+    EXPECT_EQ(leaves & (leaves - 1), 0);
+    if (i > 0) {
+      EXPECT_LT(leaves, shape[i - 1].first);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace dcslam
