@@ -1,0 +1,251 @@
+#include "dcslam/jcbb.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <tuple>
+
+#include <Eigen/Cholesky>
+
+#include "dcslam/errors.hpp"
+
+namespace dcslam {
+
+namespace {
+
+constexpr double kInfinity = std::numeric_limits<double>::infinity();
+
+// Lower Cholesky factor of a 2x2 matrix; false unless it is (numerically) positive definite.
+bool cholesky2(const Mat2& m, Mat2& lower) {
+  if (!(m(0, 0) > 0.0)) return false;
+  const double l00 = std::sqrt(m(0, 0));
+  const double l10 = 0.5 * (m(1, 0) + m(0, 1)) / l00;
+  const double pivot = m(1, 1) - l10 * l10;
+  if (!(pivot > 0.0)) return false;
+  lower << l00, 0.0, l10, std::sqrt(pivot);
+  return true;
+}
+
+// L^-1 v for a lower-triangular 2x2 L.
+Vec2 forward_solve2(const Mat2& lower, const Vec2& v) {
+  const double y0 = v(0) / lower(0, 0);
+  return Vec2(y0, (v(1) - lower(1, 0) * y0) / lower(1, 1));
+}
+
+void check_candidates(const CandidateLists& candidates) {
+  for (const auto& features : candidates) {
+    for (int feature : features) {
+      if (feature < 0) throw InvalidArgument("candidates: feature indices must be >= 0");
+    }
+  }
+}
+
+}  // namespace
+
+double individual_distance_sq(const PairingModel& model, const Pairing& pairing) {
+  Mat2 lower;
+  if (!cholesky2(model.covariance(pairing, pairing), lower)) return kInfinity;
+  return forward_solve2(lower, model.innovation(pairing)).squaredNorm();
+}
+
+Jcbb::Jcbb(const JcbbOptions& options) : options_(options), gate_(options.confidence) {
+  if (options.max_nodes < 1) throw InvalidArgument("JcbbOptions.max_nodes must be >= 1");
+}
+
+JcbbResult Jcbb::solve(const CandidateLists& candidates, const PairingModel& model) {
+  check_candidates(candidates);
+  model_ = &model;
+  num_measurements_ = static_cast<int>(candidates.size());
+  const int m = num_measurements_;
+
+  // Trying the individually closest candidate first finds a good hypothesis early, so the
+  // distance bound starts pruning sooner.
+  ordered_candidates_.resize(static_cast<std::size_t>(m));
+  for (int i = 0; i < m; ++i) {
+    ranked_.clear();
+    for (int feature : candidates[i]) {
+      ranked_.emplace_back(individual_distance_sq(model, Pairing{i, feature}), feature);
+    }
+    std::stable_sort(ranked_.begin(), ranked_.end(),
+                     [](const auto& a, const auto& b) { return a.first < b.first; });
+    auto& ordered = ordered_candidates_[static_cast<std::size_t>(i)];
+    ordered.clear();
+    for (const auto& [distance_sq, feature] : ranked_) ordered.push_back(feature);
+  }
+  pairable_from_.assign(static_cast<std::size_t>(m) + 1, 0);
+  for (int i = m - 1; i >= 0; --i) {
+    pairable_from_[i] = pairable_from_[i + 1] + (candidates[i].empty() ? 0 : 1);
+  }
+
+  if (factor_.rows() < 2 * m) {
+    factor_.resize(2 * m, 2 * m);
+    whitened_.resize(2 * m);
+    cross_.resize(2 * m, 2);
+  }
+  hypothesis_.resize(static_cast<std::size_t>(m));
+  best_.clear();
+  best_pairings_ = -1;
+  best_distance_sq_ = 0.0;
+  nodes_ = 0;
+  bound_hit_ = false;
+
+  const bool feasible = options_.allow_star || pairable_from_[0] == m;
+  if (feasible) search(0, 0, 0.0);
+
+  JcbbResult result;
+  result.feature_of.assign(static_cast<std::size_t>(m), kStar);
+  for (const Pairing& pairing : best_) result.feature_of[pairing.measurement] = pairing.feature;
+  result.pairings = static_cast<int>(best_.size());
+  result.joint_distance_sq = best_.empty() ? 0.0 : best_distance_sq_;
+  result.nodes_expanded = nodes_;
+  result.bound_hit = bound_hit_;
+  model_ = nullptr;
+  return result;
+}
+
+bool Jcbb::can_improve(int max_pairings, double distance_sq_lower_bound) const {
+  return max_pairings > best_pairings_ ||
+         (max_pairings == best_pairings_ && distance_sq_lower_bound < best_distance_sq_);
+}
+
+bool Jcbb::feature_in_use(int depth, int feature) const {
+  for (int t = 0; t < depth; ++t) {
+    if (hypothesis_[t].feature == feature) return true;
+  }
+  return false;
+}
+
+void Jcbb::record(int depth, double distance_sq) {
+  best_.assign(hypothesis_.begin(), hypothesis_.begin() + depth);
+  best_pairings_ = depth;
+  best_distance_sq_ = distance_sq;
+}
+
+void Jcbb::search(int measurement, int depth, double distance_sq) {
+  if (bound_hit_) return;
+  if (nodes_ >= options_.max_nodes) {
+    bound_hit_ = true;
+    return;
+  }
+  ++nodes_;
+  // With the star allowed every node is a complete hypothesis (the rest unpaired), so it is
+  // recorded here; that also gives the bounded search a useful answer.
+  const bool complete = measurement == num_measurements_;
+  if ((complete || options_.allow_star) && can_improve(depth, distance_sq)) {
+    record(depth, distance_sq);
+  }
+  if (complete) return;
+
+  const int pairable_after = pairable_from_[measurement + 1];
+  for (int feature : ordered_candidates_[measurement]) {
+    // Re-checked per candidate: the best may have improved inside the previous subtree.
+    if (!can_improve(depth + 1 + pairable_after, distance_sq)) break;
+    if (feature_in_use(depth, feature)) continue;
+    const Pairing pairing{measurement, feature};
+    double extended_distance_sq = distance_sq;
+    if (!extend(depth, pairing, extended_distance_sq)) continue;
+    if (!can_improve(depth + 1 + pairable_after, extended_distance_sq)) continue;
+    hypothesis_[depth] = pairing;
+    search(measurement + 1, depth + 1, extended_distance_sq);
+    if (bound_hit_) return;
+  }
+  if (options_.allow_star && can_improve(depth + pairable_after, distance_sq)) {
+    search(measurement + 1, depth, distance_sq);
+  }
+}
+
+bool Jcbb::extend(int depth, const Pairing& pairing, double& distance_sq) {
+  // Appending pairing a to H: with C_Ha = cov(nu_H, nu_a) and X = L^-1 C_Ha, the new factor
+  // row is [X', chol(C_aa - X'X)] and the new whitened entry chol(..)^-1 (nu_a - X' w_H).
+  const int rows = 2 * depth;
+  auto cross = cross_.topRows(rows);
+  for (int t = 0; t < depth; ++t) {
+    cross.middleRows<2>(2 * t) = model_->covariance(hypothesis_[t], pairing);
+  }
+  const auto lower = factor_.topLeftCorner(rows, rows).triangularView<Eigen::Lower>();
+  lower.solveInPlace(cross);
+  const Mat2 schur = model_->covariance(pairing, pairing) - cross.transpose() * cross;
+  Mat2 block;
+  if (!cholesky2(schur, block)) return false;
+  const Vec2 residual =
+      model_->innovation(pairing) - cross.transpose() * whitened_.head(rows);
+  const Vec2 whitened = forward_solve2(block, residual);
+  const double extended = distance_sq + whitened.squaredNorm();
+  if (!(extended <= gate_.threshold(2 * (depth + 1)))) return false;
+  factor_.block(rows, 0, 2, rows) = cross.transpose();
+  factor_.block<2, 2>(rows, rows) = block;
+  whitened_.segment<2>(rows) = whitened;
+  distance_sq = extended;
+  return true;
+}
+
+JcbbResult jcbb(const CandidateLists& candidates, const PairingModel& model,
+                const JcbbOptions& options) {
+  Jcbb solver(options);
+  return solver.solve(candidates, model);
+}
+
+CandidateLists individually_compatible(const CandidateLists& candidates,
+                                       const PairingModel& model, double confidence) {
+  check_candidates(candidates);
+  const double gate = chi2_quantile(2, confidence);
+  CandidateLists compatible(candidates.size());
+  for (std::size_t i = 0; i < candidates.size(); ++i) {
+    for (int feature : candidates[i]) {
+      if (individual_distance_sq(model, Pairing{static_cast<int>(i), feature}) <= gate) {
+        compatible[i].push_back(feature);
+      }
+    }
+  }
+  return compatible;
+}
+
+std::vector<int> nearest_neighbour(const CandidateLists& candidates, const PairingModel& model,
+                                   double confidence) {
+  check_candidates(candidates);
+  const double gate = chi2_quantile(2, confidence);
+  std::vector<std::tuple<double, int, int>> ranked;
+  for (std::size_t i = 0; i < candidates.size(); ++i) {
+    const int measurement = static_cast<int>(i);
+    for (int feature : candidates[i]) {
+      const double distance_sq = individual_distance_sq(model, Pairing{measurement, feature});
+      if (distance_sq <= gate) ranked.emplace_back(distance_sq, measurement, feature);
+    }
+  }
+  std::sort(ranked.begin(), ranked.end());
+  std::vector<int> feature_of(candidates.size(), kStar);
+  std::vector<int> used_features;
+  for (const auto& [distance_sq, measurement, feature] : ranked) {
+    if (feature_of[measurement] != kStar) continue;
+    if (std::find(used_features.begin(), used_features.end(), feature) != used_features.end()) {
+      continue;
+    }
+    feature_of[measurement] = feature;
+    used_features.push_back(feature);
+  }
+  return feature_of;
+}
+
+double joint_distance_sq(const std::vector<int>& feature_of, const PairingModel& model) {
+  std::vector<Pairing> pairings;
+  for (std::size_t i = 0; i < feature_of.size(); ++i) {
+    if (feature_of[i] != kStar) pairings.push_back(Pairing{static_cast<int>(i), feature_of[i]});
+  }
+  const auto k = static_cast<Eigen::Index>(pairings.size());
+  if (k == 0) return 0.0;
+  Eigen::VectorXd innovation(2 * k);
+  Eigen::MatrixXd covariance(2 * k, 2 * k);
+  for (Eigen::Index a = 0; a < k; ++a) {
+    innovation.segment<2>(2 * a) = model.innovation(pairings[a]);
+    for (Eigen::Index b = 0; b <= a; ++b) {
+      const Mat2 block = model.covariance(pairings[a], pairings[b]);
+      covariance.block<2, 2>(2 * a, 2 * b) = block;
+      covariance.block<2, 2>(2 * b, 2 * a) = block.transpose();
+    }
+  }
+  const Eigen::LLT<Eigen::MatrixXd> cholesky(covariance);
+  if (cholesky.info() != Eigen::Success) return kInfinity;
+  return cholesky.matrixL().solve(innovation).squaredNorm();
+}
+
+}  // namespace dcslam

@@ -1,0 +1,313 @@
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include <Eigen/Cholesky>
+#include <gtest/gtest.h>
+
+#include "dcslam/chi_square.hpp"
+#include "dcslam/errors.hpp"
+#include "dcslam/jcbb.hpp"
+
+namespace dcslam {
+namespace {
+
+// A linear-Gaussian scan: state x = [t (2); f_0 (2); ...] with estimate 0 and covariance P,
+// measurement i observes A_i (f_j - t) with noise R_i. The true state is a draw from N(0, P),
+// so correct pairings are compatible and nearby features are ambiguous.
+class LinearScanModel : public PairingModel {
+ public:
+  Eigen::MatrixXd P;
+  std::vector<Vec2> feature_mean;
+  std::vector<Mat2> A;
+  std::vector<Mat2> R;
+  std::vector<Vec2> z;
+
+  Vec2 innovation(const Pairing& p) const override {
+    return z[p.measurement] - A[p.measurement] * feature_mean[p.feature];
+  }
+  Mat2 covariance(const Pairing& a, const Pairing& b) const override {
+    const Mat2 relative = block(2 + 2 * a.feature, 2 + 2 * b.feature) - block(2 + 2 * a.feature, 0) -
+                          block(0, 2 + 2 * b.feature) + block(0, 0);
+    Mat2 c = A[a.measurement] * relative * A[b.measurement].transpose();
+    if (a.measurement == b.measurement) c += R[a.measurement];
+    return c;
+  }
+
+ private:
+  Mat2 block(Eigen::Index row, Eigen::Index col) const { return P.block<2, 2>(row, col); }
+};
+
+struct Problem {
+  LinearScanModel model;
+  CandidateLists candidates;
+};
+
+Problem random_problem(std::mt19937_64& rng, int max_measurements) {
+  std::normal_distribution<double> normal;
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  Problem problem;
+  LinearScanModel& model = problem.model;
+  const int n = 3 + static_cast<int>(uniform(rng) * 5);
+  const Eigen::Index dim = 2 + 2 * n;
+  Eigen::MatrixXd factor(dim, dim);
+  for (Eigen::Index i = 0; i < dim; ++i) {
+    for (Eigen::Index j = 0; j < dim; ++j) factor(i, j) = normal(rng);
+  }
+  // Random correlations and sparse structure: some state entries barely uncertain.
+  for (Eigen::Index i = 0; i < dim; ++i) factor.row(i) *= (uniform(rng) < 0.2 ? 0.05 : 0.2);
+  model.P = factor * factor.transpose() + 0.001 * Eigen::MatrixXd::Identity(dim, dim);
+  const Eigen::VectorXd truth = model.P.llt().matrixL() * Eigen::VectorXd::NullaryExpr(
+                                                              dim, [&]() { return normal(rng); });
+  for (int j = 0; j < n; ++j) model.feature_mean.emplace_back(2.0 * uniform(rng), 2.0 * uniform(rng));
+
+  const int m = 1 + static_cast<int>(uniform(rng) * max_measurements);
+  std::vector<int> features(n);
+  for (int j = 0; j < n; ++j) features[j] = j;
+  std::shuffle(features.begin(), features.end(), rng);
+  for (int i = 0; i < m; ++i) {
+    const double angle = 0.3 * normal(rng);
+    Mat2 a;
+    a << std::cos(angle), -std::sin(angle), std::sin(angle), std::cos(angle);
+    model.A.push_back(a * (1.0 + 0.2 * normal(rng)));
+    const double sigma = 0.02 + 0.1 * uniform(rng);
+    model.R.push_back(sigma * sigma * Mat2::Identity());
+    const Vec2 noise(sigma * normal(rng), sigma * normal(rng));
+    const bool spurious = i >= n || uniform(rng) < 0.15;
+    if (spurious) {
+      model.z.push_back(Vec2(2.0 * uniform(rng), 2.0 * uniform(rng)));
+    } else {
+      const int j = features[i];
+      const Vec2 f = model.feature_mean[j] + truth.segment<2>(2 + 2 * j) - truth.head<2>();
+      model.z.push_back(model.A.back() * f + noise);
+    }
+    std::vector<int> list;
+    for (int j = 0; j < n; ++j) {
+      if (uniform(rng) < 0.45 || (!spurious && j == features[i] && uniform(rng) < 0.9)) {
+        list.push_back(j);
+      }
+    }
+    std::shuffle(list.begin(), list.end(), rng);
+    list.resize(std::min<std::size_t>(list.size(), 3));
+    problem.candidates.push_back(list);
+  }
+  return problem;
+}
+
+// Joint distance of pairings computed from scratch (stacked nu, full S, LDLT).
+double direct_distance_sq(const std::vector<Pairing>& pairings, const PairingModel& model) {
+  const auto k = static_cast<Eigen::Index>(pairings.size());
+  Eigen::VectorXd nu(2 * k);
+  Eigen::MatrixXd S(2 * k, 2 * k);
+  for (Eigen::Index a = 0; a < k; ++a) {
+    nu.segment<2>(2 * a) = model.innovation(pairings[a]);
+    for (Eigen::Index b = 0; b < k; ++b) {
+      S.block<2, 2>(2 * a, 2 * b) = model.covariance(pairings[a], pairings[b]);
+    }
+  }
+  return nu.dot(S.ldlt().solve(nu));
+}
+
+struct Exhaustive {
+  int pairings = -1;
+  double distance_sq = 0.0;
+  double runner_up_distance_sq = std::numeric_limits<double>::infinity();
+  std::vector<int> feature_of;
+};
+
+// Enumerates every assignment (candidate or star, features once) whose prefixes are all
+// jointly compatible, each distance computed directly.
+void enumerate(const CandidateLists& candidates, const PairingModel& model, double confidence,
+               bool allow_star, std::size_t measurement, std::vector<Pairing>& hypothesis,
+               std::vector<int>& feature_of, double distance_sq, Exhaustive& best) {
+  if (measurement == candidates.size()) {
+    const int pairings = static_cast<int>(hypothesis.size());
+    if (pairings > best.pairings) {
+      best = Exhaustive{pairings, distance_sq, std::numeric_limits<double>::infinity(), feature_of};
+    } else if (pairings == best.pairings) {
+      if (distance_sq < best.distance_sq) {
+        best.runner_up_distance_sq = best.distance_sq;
+        best.distance_sq = distance_sq;
+        best.feature_of = feature_of;
+      } else {
+        best.runner_up_distance_sq = std::min(best.runner_up_distance_sq, distance_sq);
+      }
+    }
+    return;
+  }
+  for (int feature : candidates[measurement]) {
+    const bool used = std::any_of(hypothesis.begin(), hypothesis.end(),
+                                  [&](const Pairing& p) { return p.feature == feature; });
+    if (used) continue;
+    hypothesis.push_back(Pairing{static_cast<int>(measurement), feature});
+    const double extended = direct_distance_sq(hypothesis, model);
+    if (extended <= chi2_quantile(2 * static_cast<int>(hypothesis.size()), confidence)) {
+      feature_of[measurement] = feature;
+      enumerate(candidates, model, confidence, allow_star, measurement + 1, hypothesis, feature_of,
+                extended, best);
+      feature_of[measurement] = kStar;
+    }
+    hypothesis.pop_back();
+  }
+  if (allow_star) {
+    enumerate(candidates, model, confidence, allow_star, measurement + 1, hypothesis, feature_of,
+              distance_sq, best);
+  }
+}
+
+Exhaustive exhaustive(const Problem& problem, double confidence, bool allow_star) {
+  Exhaustive best;
+  std::vector<Pairing> hypothesis;
+  std::vector<int> feature_of(problem.candidates.size(), kStar);
+  enumerate(problem.candidates, problem.model, confidence, allow_star, 0, hypothesis, feature_of,
+            0.0, best);
+  return best;
+}
+
+int count_pairings(const std::vector<int>& feature_of) {
+  return static_cast<int>(std::count_if(feature_of.begin(), feature_of.end(),
+                                        [](int f) { return f != kStar; }));
+}
+
+void expect_matches_exhaustive(bool allow_star, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  int unique_checked = 0;
+  int nontrivial = 0;
+  for (int trial = 0; trial < 400; ++trial) {
+    const Problem problem = random_problem(rng, 6);
+    const double confidence = trial % 3 == 0 ? 0.95 : 0.99;
+    JcbbOptions options;
+    options.confidence = confidence;
+    options.allow_star = allow_star;
+    const JcbbResult result = jcbb(problem.candidates, problem.model, options);
+    const Exhaustive reference = exhaustive(problem, confidence, allow_star);
+    ASSERT_FALSE(result.bound_hit);
+    ASSERT_EQ(result.pairings, count_pairings(result.feature_of));
+    if (reference.pairings < 0) {  // JCBB*: nothing pairs every measurement
+      ASSERT_EQ(result.pairings, 0) << "trial " << trial;
+      ASSERT_TRUE(std::all_of(result.feature_of.begin(), result.feature_of.end(),
+                              [](int f) { return f == kStar; }));
+      continue;
+    }
+    nontrivial += reference.pairings > 1;
+    ASSERT_EQ(result.pairings, reference.pairings) << "trial " << trial;
+    ASSERT_NEAR(result.joint_distance_sq, reference.distance_sq,
+                1e-9 * std::max(1.0, reference.distance_sq))
+        << "trial " << trial;
+    ASSERT_NEAR(joint_distance_sq(result.feature_of, problem.model), result.joint_distance_sq,
+                1e-9 * std::max(1.0, reference.distance_sq));
+    if (reference.runner_up_distance_sq - reference.distance_sq > 1e-7) {
+      ASSERT_EQ(result.feature_of, reference.feature_of) << "trial " << trial;
+      ++unique_checked;
+    }
+  }
+  EXPECT_GT(unique_checked, 100);
+  EXPECT_GT(nontrivial, 100);
+}
+
+TEST(Jcbb, MatchesExhaustiveSearch) { expect_matches_exhaustive(true, 11); }
+
+TEST(Jcbb, StarFreeVariantMatchesExhaustiveSearch) { expect_matches_exhaustive(false, 12); }
+
+TEST(Jcbb, NodeBoundReturnsAnAdmissibleHypothesis) {
+  std::mt19937_64 rng(5);
+  int bounded = 0;
+  for (int trial = 0; trial < 50; ++trial) {
+    Problem problem = random_problem(rng, 8);
+    JcbbOptions options;
+    options.max_nodes = 4;
+    const JcbbResult result = jcbb(problem.candidates, problem.model, options);
+    if (!result.bound_hit) continue;
+    ++bounded;
+    EXPECT_EQ(result.nodes_expanded, 4);
+    EXPECT_EQ(result.pairings, count_pairings(result.feature_of));
+    const double direct = joint_distance_sq(result.feature_of, problem.model);
+    EXPECT_NEAR(direct, result.joint_distance_sq, 1e-9 * std::max(1.0, direct));
+    if (result.pairings > 0) {
+      EXPECT_LE(direct, chi2_quantile(2 * result.pairings, options.confidence));
+    }
+    const JcbbResult full = jcbb(problem.candidates, problem.model);
+    EXPECT_FALSE(full.bound_hit);
+    EXPECT_GE(full.pairings, result.pairings);
+    EXPECT_GT(full.nodes_expanded, 4);
+  }
+  EXPECT_GT(bounded, 20);
+}
+
+TEST(Jcbb, SolverReusesBuffersAcrossProblemsOfDifferentSize) {
+  std::mt19937_64 rng(9);
+  Jcbb solver;
+  for (int trial = 0; trial < 60; ++trial) {
+    const Problem problem = random_problem(rng, trial % 2 == 0 ? 6 : 2);
+    const JcbbResult reused = solver.solve(problem.candidates, problem.model);
+    const JcbbResult fresh = jcbb(problem.candidates, problem.model);
+    ASSERT_EQ(reused.feature_of, fresh.feature_of);
+    ASSERT_EQ(reused.nodes_expanded, fresh.nodes_expanded);
+  }
+}
+
+TEST(Jcbb, EmptyAndUnpairableInputs) {
+  LinearScanModel model;
+  EXPECT_EQ(jcbb({}, model).pairings, 0);
+  const JcbbResult none = jcbb({{}, {}}, model);
+  EXPECT_EQ(none.feature_of, (std::vector<int>{kStar, kStar}));
+  EXPECT_THROW(jcbb({{-2}}, model), InvalidArgument);
+  JcbbOptions options;
+  options.max_nodes = 0;
+  EXPECT_THROW(Jcbb{options}, InvalidArgument);
+}
+
+// Greedy nearest neighbour written the slow way: repeatedly take the globally closest
+// compatible pair among unused measurements and features.
+std::vector<int> brute_force_nearest_neighbour(const Problem& problem, double confidence) {
+  const double gate = chi2_quantile(2, confidence);
+  const std::size_t m = problem.candidates.size();
+  std::vector<int> feature_of(m, kStar);
+  std::vector<int> used;
+  for (;;) {
+    double closest = std::numeric_limits<double>::infinity();
+    Pairing chosen{-1, -1};
+    for (std::size_t i = 0; i < m; ++i) {
+      if (feature_of[i] != kStar) continue;
+      for (int j : problem.candidates[i]) {
+        if (std::find(used.begin(), used.end(), j) != used.end()) continue;
+        const Pairing p{static_cast<int>(i), j};
+        const double d = direct_distance_sq({p}, problem.model);
+        if (d <= gate && d < closest) {
+          closest = d;
+          chosen = p;
+        }
+      }
+    }
+    if (chosen.measurement < 0) return feature_of;
+    feature_of[chosen.measurement] = chosen.feature;
+    used.push_back(chosen.feature);
+  }
+}
+
+TEST(NearestNeighbour, MatchesBruteForceAndIndividualCompatibilityFilters) {
+  std::mt19937_64 rng(21);
+  for (int trial = 0; trial < 300; ++trial) {
+    const Problem problem = random_problem(rng, 6);
+    ASSERT_EQ(nearest_neighbour(problem.candidates, problem.model, 0.99),
+              brute_force_nearest_neighbour(problem, 0.99))
+        << "trial " << trial;
+    const CandidateLists compatible =
+        individually_compatible(problem.candidates, problem.model, 0.95);
+    for (std::size_t i = 0; i < problem.candidates.size(); ++i) {
+      std::vector<int> expected;
+      for (int j : problem.candidates[i]) {
+        if (direct_distance_sq({Pairing{static_cast<int>(i), j}}, problem.model) <=
+            chi2_quantile(2, 0.95)) {
+          expected.push_back(j);
+        }
+      }
+      ASSERT_EQ(compatible[i], expected);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace dcslam
