@@ -1,12 +1,100 @@
 #include "dcslam/join_association.hpp"
 
-#include "dcslam/errors.hpp"
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Eigenvalues>
+
+#include "dcslam/chi_square.hpp"
+#include "dcslam/jcbb.hpp"
+#include "dcslam/rjc.hpp"
+#include "dcslam/spatial_hash.hpp"
 
 namespace dcslam {
 
-JoinAssociationResult associate_maps(const JoinFrame&, const JoinOptions& options) {
-  throw InvalidArgument(std::string("SlamConfig.join_association: '") +
-                        to_string(options.association) + "' is not available yet");
+namespace {
+
+using Index = Eigen::Index;
+
+// Measurement = feature j of the moved m2, feature = feature i of m1; the innovation of the
+// pairing is f'_j - f_i, whose covariance is P_ii + P_jj - P_ij - P_ji in the stacked map.
+class JoinPairingModel : public PairingModel {
+ public:
+  explicit JoinPairingModel(const JoinFrame& frame) : frame_(frame) {}
+  Vec2 innovation(const Pairing& p) const override {
+    return frame_.moved_second_feature(p.measurement) - frame_.first_feature(p.feature);
+  }
+  Mat2 covariance(const Pairing& a, const Pairing& b) const override {
+    return frame_.constraint_covariance(a.feature, a.measurement, b.feature, b.measurement);
+  }
+
+ private:
+  const JoinFrame& frame_;
+};
+
+double largest_std(const Mat2& covariance) {
+  const double half_trace = 0.5 * covariance.trace();
+  const double det = covariance.determinant();
+  return std::sqrt(std::max(0.0, half_trace + std::sqrt(std::max(0.0, half_trace * half_trace - det))));
+}
+
+}  // namespace
+
+JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options) {
+  const GaussianMap& m1 = frame.first();
+  const GaussianMap& m2 = frame.second();
+  const Index n1 = m1.num_features(), n2 = m2.num_features();
+  JoinAssociationResult result;
+  if (n1 == 0 || n2 == 0) return result;
+
+  // Candidate search radius: a pair (i, j) passes the gate only if |f'_j - f_i| <=
+  // sqrt(gate) * (sigma_i + sigma_j), with sigma the largest standard deviation of each.
+  const double gate_radius = std::sqrt(chi2_quantile(2, options.gate_confidence));
+  double sigma_first = 0.0;
+  for (Index i = 0; i < n1; ++i) sigma_first = std::max(sigma_first, largest_std(frame.first_first(i, i)));
+  std::vector<double> sigma_second(static_cast<std::size_t>(n2));
+  double typical_radius = 0.0;
+  for (Index j = 0; j < n2; ++j) {
+    sigma_second[static_cast<std::size_t>(j)] = largest_std(frame.second_second(j, j));
+    typical_radius = std::max(typical_radius, gate_radius * (sigma_first + sigma_second[static_cast<std::size_t>(j)]));
+  }
+  SpatialHash hash(std::max(0.5, typical_radius));
+  for (Index i = 0; i < n1; ++i) hash.insert(static_cast<int>(i), m1.feature(i));
+
+  const JoinPairingModel model(frame);
+  CandidateLists candidates(static_cast<std::size_t>(n2));
+  std::vector<int> nearby;
+  for (Index j = 0; j < n2; ++j) {
+    const double radius = gate_radius * (sigma_first + sigma_second[static_cast<std::size_t>(j)]);
+    hash.query(frame.moved_second_feature(j), radius, nearby);
+    std::sort(nearby.begin(), nearby.end());
+    candidates[static_cast<std::size_t>(j)] = std::move(nearby);
+    nearby = {};
+  }
+  candidates = individually_compatible(candidates, model, options.gate_confidence);
+  for (const auto& list : candidates) result.overlap += list.empty() ? 0 : 1;
+
+  std::vector<int> feature_of;
+  if (options.association == JoinAssociation::Rjc) {
+    RjcOptions rjc_options;
+    rjc_options.b = options.rjc_b;
+    rjc_options.p_good = options.rjc_p_good;
+    rjc_options.p_fail = options.rjc_p_fail;
+    rjc_options.confidence = options.gate_confidence;
+    rjc_options.seed = options.seed;
+    RjcResult rjc_result = rjc(candidates, model, rjc_options);
+    result.tries = rjc_result.tries;
+    feature_of = std::move(rjc_result.feature_of);
+  } else {
+    JcbbOptions jcbb_options;
+    jcbb_options.confidence = options.gate_confidence;
+    feature_of = jcbb(candidates, model, jcbb_options).feature_of;
+  }
+  for (Index j = 0; j < n2; ++j) {
+    const int i = feature_of[static_cast<std::size_t>(j)];
+    if (i != kStar) result.pairs.emplace_back(i, j);
+  }
+  return result;
 }
 
 }  // namespace dcslam

@@ -1,6 +1,7 @@
 #include <cmath>
 #include <map>
 #include <random>
+#include <set>
 
 #include <gtest/gtest.h>
 
@@ -199,6 +200,50 @@ TEST(DcSlam, StackFollowsAlgorithm2) {
     }
   }
 }
+
+}  // namespace
+}  // namespace dcslam
+
+namespace dcslam {
+namespace {
+
+// Without ids at joins, JCBB and RJC must pair features of the same landmark (the local maps
+// keep the true ids, so a wrong merge shows as resolve(id) != id) and miss few true pairs
+// (a missed pair leaves the landmark twice in the final map).
+class DcSlamJoinAssociation : public ::testing::TestWithParam<JoinAssociation> {};
+
+TEST_P(DcSlamJoinAssociation, PairsTrueFeaturesOnly) {
+  const auto run = linear_gaussian_run(130, 3);
+  SlamConfig by_id = mode_config(10, Mode::Immediate);
+  SlamConfig unknown = by_id;
+  unknown.join_association = GetParam();
+  DCSlam reference(by_id), dc(unknown);
+  run_steps(reference, run);
+  run_steps(dc, run);
+  const auto joins = dc.joins(), reference_joins = reference.joins();
+  ASSERT_EQ(joins.size(), reference_joins.size());
+  int pairings = 0, true_pairings = 0;
+  for (std::size_t k = 0; k < joins.size(); ++k) {
+    EXPECT_GE(joins[k].report.overlap, joins[k].report.pairings);
+    pairings += joins[k].report.pairings;
+    true_pairings += reference_joins[k].report.pairings;
+    if (GetParam() == JoinAssociation::Rjc && joins[k].report.overlap > 4) {
+      EXPECT_GT(joins[k].report.tries, 0);
+    }
+  }
+  const Estimate estimate = dc.estimate();
+  std::set<std::int64_t> distinct(estimate.landmark_ids.begin(), estimate.landmark_ids.end());
+  EXPECT_EQ(dc.resolve(estimate.landmark_ids), estimate.landmark_ids);  // no wrong merge
+  for (const auto& id : reference.estimate().landmark_ids) EXPECT_EQ(dc.resolve({id})[0], id);
+  const std::size_t duplicates = estimate.landmark_ids.size() - distinct.size();
+  EXPECT_GE(true_pairings, 300);
+  EXPECT_LE(pairings, true_pairings);
+  EXPECT_GE(pairings, 0.98 * true_pairings);  // a 0.99 gate rejects ~1% of true pairs
+  EXPECT_LE(duplicates, static_cast<std::size_t>(true_pairings - pairings));
+}
+
+INSTANTIATE_TEST_SUITE_P(Modes, DcSlamJoinAssociation,
+                         ::testing::Values(JoinAssociation::Jcbb, JoinAssociation::Rjc));
 
 }  // namespace
 }  // namespace dcslam

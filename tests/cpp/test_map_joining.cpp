@@ -132,6 +132,47 @@ INSTANTIATE_TEST_SUITE_P(Cases, MapJoiningTest,
                                            JoinCase{20, 20, 10, 4}, JoinCase{0, 6, 0, 4},
                                            JoinCase{6, 0, 0, 4}, JoinCase{1, 1, 1, 2}));
 
+TEST(JoinFrame, CovarianceBlocksEqualTheDenseStackedCovariance) {
+  std::mt19937_64 rng(77);
+  const GaussianMap m1 = random_map(rng, {0, 1, 2, 3, 4});
+  const GaussianMap m2 = random_map(rng, {10, 11, 12, 13});
+  const Index d1 = m1.dim(), d2 = m2.dim(), D = d1 + d2;
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(D, D);
+  J.topLeftCorner(d1, d1).setIdentity();
+  Mat3 J_T, J_e;
+  compose(m1.robot(), m2.robot(), &J_T, &J_e);
+  J.block<3, 3>(d1, 0) = J_T;
+  J.block<3, 3>(d1, d1) = J_e;
+  for (Index j = 0; j < m2.num_features(); ++j) {
+    Mat23 J_Tp;
+    Mat2 J_p;
+    transform_point(m1.robot(), m2.feature(j), &J_Tp, &J_p);
+    J.block<2, 3>(d1 + 3 + 2 * j, 0) = J_Tp;
+    J.block<2, 2>(d1 + 3 + 2 * j, d1 + 3 + 2 * j) = J_p;
+  }
+  Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(D, D);
+  P0.topLeftCorner(d1, d1) = m1.P();
+  P0.bottomRightCorner(d2, d2) = m2.P();
+  const Eigen::MatrixXd P = J * P0 * J.transpose();
+  const JoinFrame frame(m1, m2);
+  const auto row1 = [](Index i) { return 3 + 2 * i; };
+  const auto row2 = [&](Index j) { return d1 + 3 + 2 * j; };
+  for (Index i = 0; i < 5; ++i) {
+    for (Index j = 0; j < 4; ++j) {
+      EXPECT_LT((frame.first_second(i, j) - P.block<2, 2>(row1(i), row2(j))).norm(), 1e-12);
+      EXPECT_LT((frame.second_second(j, (j + 1) % 4) - P.block<2, 2>(row2(j), row2((j + 1) % 4))).norm(), 1e-12);
+      const Index k = (i + 2) % 5, l = (j + 3) % 4;
+      Eigen::MatrixXd H_a = Eigen::MatrixXd::Zero(2, D), H_b = Eigen::MatrixXd::Zero(2, D);
+      H_a.block<2, 2>(0, row1(i)).setIdentity();
+      H_a.block<2, 2>(0, row2(j)) = -Mat2::Identity();
+      H_b.block<2, 2>(0, row1(k)).setIdentity();
+      H_b.block<2, 2>(0, row2(l)) = -Mat2::Identity();
+      EXPECT_LT((frame.constraint_covariance(i, j, k, l) - H_a * P * H_b.transpose()).norm(), 1e-12);
+      EXPECT_LT((frame.moved_second_feature(j) - transform_point(m1.robot(), m2.feature(j))).norm(), 1e-12);
+    }
+  }
+}
+
 TEST(MapJoining, ResumedInSlicesGivesBitwiseTheSameResult) {
   std::mt19937_64 rng(5);
   std::vector<std::int64_t> ids1, ids2;
