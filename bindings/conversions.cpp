@@ -62,4 +62,23 @@ Eigen::MatrixXd as_matrix(const py::handle& obj, Eigen::Index rows, Eigen::Index
   return Eigen::Map<const RowMajor>(array.data(), array.shape(0), array.shape(1));
 }
 
+std::vector<std::int64_t> as_int64_vector(const py::handle& obj, const std::string& where) {
+  py::array array = obj.is_none() ? py::array() : py::array::ensure(obj);
+  if (!array) {
+    throw py::value_error(where + ": expected an array of integers, got " +
+                          std::string(py::str(py::type::of(obj).attr("__name__"))));
+  }
+  if (array.ndim() != 1) {
+    throw py::value_error(where + ": expected shape (m,), got " + shape_string(array));
+  }
+  if (array.size() == 0) return {};
+  const char kind = array.dtype().kind();
+  if (kind != 'i' && kind != 'u') {
+    throw py::value_error(where + ": expected integers, got dtype " +
+                          std::string(py::str(array.dtype())));
+  }
+  const auto values = py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>::ensure(array);
+  return std::vector<std::int64_t>(values.data(), values.data() + values.size());
+}
+
 }  // namespace dcslam::bindings

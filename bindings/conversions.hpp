@@ -2,7 +2,9 @@
 // Checked conversions from Python objects to Eigen values. Every failure raises ValueError
 // with a message that names the function and the argument, so users learn which input was
 // wrong and why (shape, dtype, non-finite values).
+#include <cstdint>
 #include <string>
+#include <vector>
 
 #include <Eigen/Core>
 #include <pybind11/numpy.h>
@@ -29,5 +31,9 @@ Eigen::VectorXd as_vector(const py::handle& obj, Eigen::Index size, const std::s
 // A finite matrix of exactly rows x cols (rows or cols may be -1 for "any").
 Eigen::MatrixXd as_matrix(const py::handle& obj, Eigen::Index rows, Eigen::Index cols,
                           const std::string& where);
+
+// A 1-D array of integers (any integer dtype; an empty list is accepted) as int64 values.
+// Floats are refused rather than truncated.
+std::vector<std::int64_t> as_int64_vector(const py::handle& obj, const std::string& where);
 
 }  // namespace dcslam::bindings

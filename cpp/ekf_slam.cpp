@@ -130,8 +130,11 @@ void EkfSlam::associate_known(const std::vector<std::int64_t>& landmark_ids) {
 
 void EkfSlam::ensure_workspace(Index rows, Index measurement_rows) {
   if (PHt_.rows() < rows || PHt_.cols() < measurement_rows) {
-    // Sized by the map's capacity so that it reallocates only when the map does.
-    PHt_.resize(std::max(rows, map_.capacity()), std::max(measurement_rows, 2 * PHt_.cols()));
+    // Rows follow the map's capacity so that they reallocate only when the map does; columns
+    // double past the largest scan seen.
+    const Index cols = PHt_.cols() < measurement_rows ? std::max(measurement_rows, 2 * PHt_.cols())
+                                                      : PHt_.cols();
+    PHt_.resize(std::max(rows, map_.capacity()), cols);
   }
   if (S_.rows() < measurement_rows) {
     S_.resize(PHt_.cols(), PHt_.cols());
@@ -194,7 +197,9 @@ void EkfSlam::update_paired(const MeasurementsRef& z, const std::vector<Mat2>& R
   map_.x().noalias() += PHt * nu;
   map_.x()(2) = wrap_angle(map_.x()(2));
   // The one O(n^2) line: P -= W W' on the lower triangle (a symmetric rank-2k update), then
-  // one blocked copy onto the upper triangle.
+  // one blocked copy onto the upper triangle. Measured (n = 2003, 2k = 32): rankUpdate 8.4 ms
+  // + mirror 4.2 ms against 16.5 ms for a full-matrix product; a hand-tiled fused
+  // update-and-mirror was no faster than this pair.
   P.selfadjointView<Eigen::Lower>().rankUpdate(PHt, -1.0);
   mirror_lower_triangle();
 }

@@ -8,5 +8,15 @@ from ._version import __version__
 from . import geometry
 from ._core import InvalidArgument, ParseError
 from .config import SlamConfig
+from .slam import EkfSlam, Estimate, SlamStats
 
-__all__ = ["__version__", "geometry", "InvalidArgument", "ParseError", "SlamConfig"]
+__all__ = [
+    "__version__",
+    "geometry",
+    "InvalidArgument",
+    "ParseError",
+    "SlamConfig",
+    "EkfSlam",
+    "Estimate",
+    "SlamStats",
+]

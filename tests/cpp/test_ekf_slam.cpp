@@ -8,6 +8,7 @@
 #include "dcslam/ekf_slam.hpp"
 #include "dcslam/errors.hpp"
 #include "dcslam/geometry.hpp"
+#include "dcslam/input_checks.hpp"
 #include "dcslam/observation.hpp"
 #include "numeric_jacobian.hpp"
 
@@ -299,6 +300,37 @@ TEST(EkfSlam, EmptyScansAndMinusOneIdsAreHandled) {
   EXPECT_EQ(slam.stats().steps.back().rejected, 1);
   EXPECT_EQ(slam.stats().steps.back().new_features, 1);
   EXPECT_EQ(slam.resolve({-1, 5, 9}), (std::vector<std::int64_t>{-1, 5, 9}));
+}
+
+// Modes without landmark ids ("nn", "jcbb") refuse them; "known" requires them.
+TEST(InputChecks, LandmarkIdsOnlyInKnownMode) {
+  MeasurementMatrix z(1, 2);
+  z << 2.0, 0.1;
+  const std::vector<Mat2> R{Mat2::Identity()};
+  const std::vector<std::int64_t> ids{4};
+  for (Association mode : {Association::NearestNeighbour, Association::Jcbb}) {
+    EXPECT_NO_THROW(check_measurements(z, R, nullptr, ObservationModel::RangeBearing, mode, "update"));
+    try {
+      check_measurements(z, R, &ids, ObservationModel::RangeBearing, mode, "update");
+      ADD_FAILURE() << "ids accepted in mode " << to_string(mode);
+    } catch (const InvalidArgument& error) {
+      EXPECT_NE(std::string(error.what()).find("update: argument 'landmark_ids' is only accepted"),
+                std::string::npos)
+          << error.what();
+    }
+  }
+  EXPECT_THROW(check_measurements(z, R, nullptr, ObservationModel::RangeBearing, Association::Known,
+                                  "update"),
+               InvalidArgument);
+}
+
+TEST(InputChecks, SemiDefiniteQWithZeroVarianceAndTinyRoundingPasses) {
+  Mat3 Q = Vec3(0.01, 0.02, 0.0).asDiagonal();
+  EXPECT_NO_THROW(check_motion(Vec3::Zero(), Q, "predict"));
+  Q(2, 2) = -1e-18;  // rounding noise on a zero variance
+  EXPECT_NO_THROW(check_motion(Vec3::Zero(), Q, "predict"));
+  Q(2, 2) = -1e-6;
+  EXPECT_THROW(check_motion(Vec3::Zero(), Q, "predict"), InvalidArgument);
 }
 
 TEST(EkfSlam, UnimplementedAssociationModesAreRefusedAtConstruction) {

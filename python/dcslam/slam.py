@@ -1,0 +1,156 @@
+"""SLAM filters: the shared :class:`SlamFilter` surface and the sparse-aware :class:`EkfSlam`.
+
+Both wrap a compiled filter (``dcslam._core``); Python crosses into C++ once per call, and
+the GIL is released while C++ works (DESIGN.md §9). A filter object is not thread-safe: call
+it from one thread at a time.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Dict, Iterable, List, Optional
+
+import numpy as np
+
+from . import _core
+from .config import SlamConfig
+
+__all__ = ["Estimate", "SlamStats", "SlamFilter", "EkfSlam"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Estimate:
+    """The whole map in the frame of the first pose (API.md).
+
+    Attributes:
+        robot: (3,) current robot pose (x, y, phi).
+        landmarks: (n, 2) feature positions, in state order.
+        landmark_ids: (n,) int64 feature ids (the caller's ids in ``"known"`` mode).
+        covariance: (3 + 2n, 3 + 2n) full covariance, ordered [robot, lm 0, lm 1, ...].
+    """
+
+    robot: np.ndarray
+    landmarks: np.ndarray
+    landmark_ids: np.ndarray
+    covariance: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class SlamStats:
+    """Per-step statistics; one entry per step (a step opens with each ``predict``).
+
+    Attributes:
+        step_seconds: wall time of each step (predict and its updates), seconds.
+        num_features: map size after each step.
+        measurements: measurements received in each step.
+        paired: measurements paired with an existing feature.
+        new_features: measurements that started a feature.
+        rejected: measurements rejected (id -1).
+        counters: named totals, e.g. ``"predicts"``, ``"updates"`` (filters may add more).
+    """
+
+    step_seconds: np.ndarray
+    num_features: np.ndarray
+    measurements: np.ndarray
+    paired: np.ndarray
+    new_features: np.ndarray
+    rejected: np.ndarray
+    counters: Dict[str, float]
+
+    @property
+    def total_seconds(self) -> float:
+        return float(self.step_seconds.sum())
+
+
+class SlamFilter:
+    """The interface of :class:`EkfSlam` and :class:`~dcslam.DCSlam` (API.md).
+
+    Subclasses build the compiled filter and pass it to ``__init__``.
+    """
+
+    def __init__(self, core: "_core.SlamFilter", config: SlamConfig):
+        self._core = core
+        self._config = config
+
+    @property
+    def config(self) -> SlamConfig:
+        return self._config
+
+    def predict(self, u, Q) -> None:
+        """Moves the robot by ``u`` (3,), the relative motion x_{R(k-1)R(k)}, with covariance Q.
+
+        ``x_R <- x_R ⊕ u``, ``P_RR <- F P_RR F' + G Q G'``, ``P_RM <- F P_RM`` (DESIGN.md §3).
+        Q (3, 3) must be symmetric positive semi-definite; a zero variance (e.g. a known
+        heading) is legal. Opens a new step in :attr:`stats`.
+        """
+        self._core.predict(u, Q)
+
+    def update(self, z, R, landmark_ids=None) -> np.ndarray:
+        """Processes one scan and returns, per measurement, the id of its feature.
+
+        Args:
+            z: (m, 2) measurements, (r, beta) or (x, y) in the sensor frame per
+                ``SlamConfig.observation``; m may be 0 (an empty list is fine).
+            R: (2, 2) noise covariance for all measurements, or (m, 2, 2); symmetric positive
+                definite.
+            landmark_ids: (m,) int64, required in ``"known"`` association mode and refused in
+                the others. -1 marks a measurement that is not a landmark (rejected).
+
+        Returns:
+            (m,) int64: the feature id each measurement went to (a new id when it started a
+            feature, -1 when rejected).
+
+        Paired measurements are applied jointly (DESIGN.md §3: ``S = H P H' + R``,
+        ``K = P H' S^-1``, covariance downdate as one symmetric rank-2k update); new
+        features are then initialised from the updated robot (``f = g(x_R, z)``). Invalid
+        input raises ``ValueError`` naming the argument and leaves the filter unchanged.
+        """
+        return self._core.update(z, R, landmark_ids)
+
+    def estimate(self) -> Estimate:
+        """The whole map with its full covariance, in the frame of the first pose."""
+        return Estimate(**self._core.estimate())
+
+    def pose(self) -> np.ndarray:
+        """(3,) current robot pose in the first pose's frame; cheap (no covariance)."""
+        return self._core.pose()
+
+    def resolve(self, ids) -> np.ndarray:
+        """Maps ids ever returned by :meth:`update` to the feature holding them now; -1 stays -1."""
+        return self._core.resolve(ids)
+
+    @property
+    def stats(self) -> SlamStats:
+        """Per-step timings and counts; see :class:`SlamStats`."""
+        return SlamStats(**self._core.stats)
+
+    def run(self, steps: Iterable[Any], ids_field: Optional[str] = "landmark_ids") -> List[np.ndarray]:
+        """Runs ``predict(s.u, s.Q)`` then ``update(s.z, s.R, ids)`` for every step in one C++ call.
+
+        ``ids`` is ``getattr(s, ids_field)`` in ``"known"`` association mode (e.g.
+        ``ids_field="true_ids"`` for simulator steps) and None otherwise. Returns the ids of
+        every update. An invalid step raises ``ValueError`` naming it; earlier steps stay
+        applied.
+        """
+        use_ids = self._config.association == "known" and ids_field is not None
+        packed = [
+            (s.u, s.Q, s.z, s.R, np.asarray(getattr(s, ids_field), dtype=np.int64) if use_ids else None)
+            for s in steps
+        ]
+        return self._core.run(packed)
+
+
+class EkfSlam(SlamFilter):
+    """Sparse-aware EKF SLAM on one map (DESIGN.md §3; Paz et al. 2007, §II).
+
+    Cost per step O(n) except the covariance downdate, O(n^2), done in one pass over one
+    triangle of P. Data association: ``"known"`` (landmark ids given to :meth:`update`);
+    ``"nn"`` and ``"jcbb"`` are not implemented yet and raise ``ValueError``.
+
+    Args:
+        cfg: the run's options; default ``SlamConfig()``.
+    """
+
+    def __init__(self, cfg: Optional[SlamConfig] = None):
+        cfg = SlamConfig() if cfg is None else cfg
+        super().__init__(_core.EkfSlam(cfg._to_core()), cfg)
