@@ -8,5 +8,6 @@ from ._version import __version__
 from . import geometry
 from ._core import InvalidArgument, ParseError
 from .config import SlamConfig
+from . import datasets
 
-__all__ = ["__version__", "geometry", "InvalidArgument", "ParseError", "SlamConfig"]
+__all__ = ["__version__", "datasets", "geometry", "InvalidArgument", "ParseError", "SlamConfig"]
