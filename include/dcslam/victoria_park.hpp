@@ -62,8 +62,8 @@ struct VictoriaParkOptions {
   Steering steering = Steering::Recalibrated;
   OdometryNoise odometry;
   double max_range = 30.0;       // trees whose trunk centre is farther are dropped [m]
-  double sigma_range = 0.25;     // [m]
-  double sigma_bearing = 0.012;  // [rad]
+  double sigma_range = 0.1;      // [m]
+  double sigma_bearing = 0.008;  // [rad]
 };
 
 // File names inside a Victoria Park data folder.
