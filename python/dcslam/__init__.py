@@ -8,10 +8,12 @@ from ._version import __version__
 from . import geometry
 from ._core import InvalidArgument, ParseError
 from .config import SlamConfig
+from . import datasets
 from .slam import EkfSlam, Estimate, SlamStats
 
 __all__ = [
     "__version__",
+    "datasets",
     "geometry",
     "InvalidArgument",
     "ParseError",

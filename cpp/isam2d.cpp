@@ -1,0 +1,126 @@
+#include "dcslam/isam2d.hpp"
+
+#include <algorithm>
+
+#include <Eigen/Eigenvalues>
+
+#include "dcslam/errors.hpp"
+#include "dcslam/text_reader.hpp"
+
+namespace dcslam {
+
+namespace {
+
+const char* const kOdometryFields[] = {"tag", "i", "j", "dx", "dy", "dtheta",
+                                       "c11", "c12", "c13", "c22", "c23", "c33"};
+const char* const kLandmarkFields[] = {"tag", "i", "l", "x", "y", "c11", "c12", "c22"};
+
+// Semi-definite with a little slack for the file's rounding.
+template <int N>
+void require_psd(const Eigen::Matrix<double, N, N>& covariance, const std::string& where) {
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, N, N>> solver(covariance);
+  if (solver.eigenvalues().minCoeff() < -1e-12 * std::max(1.0, covariance.norm()))
+    throw ParseError(where + ": fields 'c11'..: covariance is not positive semi-definite");
+}
+
+}  // namespace
+
+Isam2dData read_isam2d(const std::string& path) {
+  TextReader reader(path);
+  std::vector<std::int64_t> pose_ids;
+  std::vector<Eigen::Matrix<double, 1, 3>> u;
+  std::vector<Eigen::Matrix<double, 1, 9>> Q;
+  std::vector<std::int64_t> offsets{0};
+  std::vector<Eigen::Matrix<double, 1, 2>> z;
+  std::vector<Eigen::Matrix<double, 1, 4>> R;
+  std::vector<std::int64_t> landmark_ids;
+  Isam2dData data;
+
+  bool have_pose = false;
+  std::int64_t current_pose = 0;
+  std::string line;
+  while (reader.next_line(line)) {
+    const std::vector<std::string> tokens = split_whitespace(line);
+    if (tokens.empty() || tokens.front().front() == '#') continue;
+    const std::string where = reader.where();
+    const std::string& tag = tokens.front();
+    if (tag == "ODOMETRY") {
+      if (tokens.size() != 12)
+        throw ParseError(where + ": ODOMETRY needs 12 tokens (ODOMETRY i j dx dy dtheta c11 c12 "
+                         "c13 c22 c23 c33), found " + std::to_string(tokens.size()));
+      const std::int64_t from = parse_integer(tokens[1], where, "i");
+      const std::int64_t to = parse_integer(tokens[2], where, "j");
+      double values[9];
+      for (int f = 0; f < 9; ++f) values[f] = parse_number(tokens[3 + f], where, kOdometryFields[3 + f]);
+      if (have_pose && from != current_pose)
+        throw ParseError(where + ": field 'i': " + std::to_string(from) +
+                         " breaks the pose chain (the current pose is " +
+                         std::to_string(current_pose) + ")");
+      if (to <= from)
+        throw ParseError(where + ": field 'j': " + std::to_string(to) +
+                         " does not follow pose " + std::to_string(from));
+      Eigen::Matrix3d covariance;
+      covariance << values[3], values[4], values[5], values[4], values[6], values[7], values[5],
+          values[7], values[8];
+      require_psd<3>(covariance, where);
+      pose_ids.push_back(to);
+      u.emplace_back(values[0], values[1], values[2]);
+      Q.emplace_back(Eigen::Map<const Eigen::Matrix<double, 1, 9>>(covariance.data()));
+      offsets.push_back(static_cast<std::int64_t>(z.size()));
+      have_pose = true;
+      current_pose = to;
+      ++data.odometry_lines;
+    } else if (tag == "LANDMARK") {
+      if (tokens.size() != 8)
+        throw ParseError(where + ": LANDMARK needs 8 tokens (LANDMARK i l x y c11 c12 c22), "
+                         "found " + std::to_string(tokens.size()));
+      const std::int64_t from = parse_integer(tokens[1], where, "i");
+      const std::int64_t landmark = parse_integer(tokens[2], where, "l");
+      double values[5];
+      for (int f = 0; f < 5; ++f) values[f] = parse_number(tokens[3 + f], where, kLandmarkFields[3 + f]);
+      if (!have_pose) {
+        // Seen from the first pose, before any motion: the initial step with u = 0, Q = 0.
+        have_pose = true;
+        current_pose = from;
+        pose_ids.push_back(from);
+        u.emplace_back(Eigen::Matrix<double, 1, 3>::Zero());
+        Q.emplace_back(Eigen::Matrix<double, 1, 9>::Zero());
+        offsets.push_back(0);
+      }
+      if (from != current_pose)
+        throw ParseError(where + ": field 'i': landmark seen from pose " + std::to_string(from) +
+                         " but the current pose is " + std::to_string(current_pose));
+      Eigen::Matrix2d covariance;
+      covariance << values[2], values[3], values[3], values[4];
+      require_psd<2>(covariance, where);
+      z.emplace_back(values[0], values[1]);
+      R.emplace_back(values[2], values[3], values[3], values[4]);
+      landmark_ids.push_back(landmark);
+      offsets.back() = static_cast<std::int64_t>(z.size());
+      ++data.landmark_lines;
+    } else {
+      throw ParseError(where + ": field 'tag': unknown tag '" + tag +
+                       "' (expected ODOMETRY or LANDMARK)");
+    }
+  }
+  const auto n = static_cast<Eigen::Index>(u.size());
+  const auto m = static_cast<Eigen::Index>(z.size());
+  data.pose_ids = std::move(pose_ids);
+  data.offsets = std::move(offsets);
+  data.landmark_ids = std::move(landmark_ids);
+  data.u.resize(n, 3);
+  data.Q.resize(n, 9);
+  for (Eigen::Index k = 0; k < n; ++k) {
+    data.u.row(k) = u[static_cast<std::size_t>(k)];
+    data.Q.row(k) = Q[static_cast<std::size_t>(k)];
+  }
+  data.z.resize(m, 2);
+  data.R.resize(m, 4);
+  for (Eigen::Index i = 0; i < m; ++i) {
+    data.z.row(i) = z[static_cast<std::size_t>(i)];
+    data.R.row(i) = R[static_cast<std::size_t>(i)];
+  }
+  return data;
+}
+
+}  // namespace dcslam

@@ -1,0 +1,76 @@
+#pragma once
+// Line-by-line reading of plain or gzip-compressed text files, and a small CSV table reader
+// on top of it. Every error is a ParseError whose message starts with "<file>:<line>:" and
+// names the offending field, so a user can open the file at the right place.
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace dcslam {
+
+// Reads a plain or gzip text file (detected from its content, not its name) one line at a
+// time. A gzip stream that ends early raises ParseError("<file>: truncated gzip stream").
+class TextReader {
+ public:
+  explicit TextReader(const std::string& path);
+  ~TextReader();
+  TextReader(const TextReader&) = delete;
+  TextReader& operator=(const TextReader&) = delete;
+
+  // Reads the next line without its line ending ("\n" or "\r\n"). Returns false at the end.
+  bool next_line(std::string& line);
+
+  const std::string& path() const { return path_; }
+  // 1-based number of the line last returned by next_line.
+  std::int64_t line_number() const { return line_number_; }
+  // "<file>:<line>", the prefix of every error message about the current line.
+  std::string where() const;
+
+ private:
+  struct GzFile;
+  std::string path_;
+  std::unique_ptr<GzFile> file_;
+  std::int64_t line_number_ = 0;
+};
+
+// Parses a whole decimal number; throws ParseError "<where>: field '<field>': '<text>' is not
+// a number" otherwise (also for inf/nan, which no dataset field may hold).
+double parse_number(const std::string& text, const std::string& where, const std::string& field);
+// Same for an integer field: also rejects fractional values.
+std::int64_t parse_integer(const std::string& text, const std::string& where,
+                           const std::string& field);
+
+// The numeric columns of a comma-separated file with one header line. Only the requested
+// columns are kept (in the requested order); the header must hold each of them, and every
+// row must have as many fields as the header.
+class CsvTable {
+ public:
+  CsvTable(const std::string& path, const std::vector<std::string>& columns);
+
+  const std::string& path() const { return path_; }
+  std::size_t rows() const { return line_numbers_.size(); }
+  // Values of the i-th requested column, one per row.
+  const std::vector<double>& column(std::size_t i) const { return values_[i]; }
+  const std::string& column_name(std::size_t i) const { return names_[i]; }
+  // "<file>:<line>" of a row, for errors found after parsing (e.g. times going backwards).
+  std::string where(std::size_t row) const;
+
+  // Throws ParseError naming the first row whose value in column i is below the previous one.
+  void require_non_decreasing(std::size_t i) const;
+  // Throws ParseError naming the first row whose value in column i is not an integer.
+  void require_integer(std::size_t i) const;
+
+ private:
+  std::string path_;
+  std::vector<std::string> names_;
+  std::vector<std::vector<double>> values_;
+  std::vector<std::int64_t> line_numbers_;
+};
+
+// Splits a line on a single-character separator ("a,,b" gives three fields).
+std::vector<std::string> split_fields(const std::string& line, char separator);
+// Splits a line on runs of blanks (spaces and tabs), dropping empty tokens.
+std::vector<std::string> split_whitespace(const std::string& line);
+
+}  // namespace dcslam
