@@ -157,6 +157,16 @@ TEST(Rjc, FindsTheTruePairingForManySeeds) {
   }
 }
 
+TEST(Rjc, WithoutVerificationReportsNoJointDistance) {
+  const JoinProblem problem = grid_join(9, 0, 6, 3, 9);
+  RjcOptions options;
+  options.verify = false;
+  const RjcResult result = rjc(problem.candidates, problem.model, options);
+  EXPECT_EQ(result.feature_of, problem.truth);
+  EXPECT_EQ(result.dropped, 0);
+  EXPECT_TRUE(std::isnan(result.joint_distance_sq));
+}
+
 TEST(Rjc, SameSeedSameResult) {
   const JoinProblem problem = grid_join(3, 0, 6, 3, 9);
   RjcOptions options;
