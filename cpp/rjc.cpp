@@ -72,6 +72,8 @@ int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel
     if (feature_of[i] != kStar) pairings.push_back(Pairing{static_cast<int>(i), feature_of[i]});
   }
   const auto k = static_cast<Eigen::Index>(pairings.size());
+  if (joint_distance_sq != nullptr) *joint_distance_sq = 0.0;
+  if (k == 0) return 0;
   Eigen::VectorXd innovation(2 * k);
   Eigen::MatrixXd information(2 * k, 2 * k);
   for (Eigen::Index a = 0; a < k; ++a) {
@@ -176,12 +178,10 @@ RjcResult rjc(const CandidateLists& candidates, const PairingModel& model,
   while (result.tries < tries_wanted && result.tries < options.max_tries) {
     ++result.tries;
     // Partial Fisher–Yates: the first b slots of the pool become a uniform sample.
-    for (int k = 0; k < b; ++k) {
-      const std::size_t pick = static_cast<std::size_t>(k) +
-                               draw_below(rng, pool.size() - static_cast<std::size_t>(k));
-      std::swap(pool[static_cast<std::size_t>(k)], pool[pick]);
-      sample[static_cast<std::size_t>(k)] = pool[static_cast<std::size_t>(k)];
-      sample_candidates[static_cast<std::size_t>(k)] = candidates[pool[static_cast<std::size_t>(k)]];
+    for (std::size_t k = 0; k < sample.size(); ++k) {
+      std::swap(pool[k], pool[k + draw_below(rng, pool.size() - k)]);
+      sample[k] = pool[k];
+      sample_candidates[k] = candidates[static_cast<std::size_t>(pool[k])];
     }
     const JcbbResult seed = star_free.solve(sample_candidates, sampled_model);
     if (seed.pairings < b) continue;
@@ -214,8 +214,9 @@ RjcResult rjc(const CandidateLists& candidates, const PairingModel& model,
           continue;
         }
         const Pairing pairing{measurement, feature};
-        for (int k = 0; k < b; ++k) {
-          cross.middleRows<2>(2 * k) = model.covariance(hypothesis[static_cast<std::size_t>(k)], pairing);
+        for (std::size_t k = 0; k < hypothesis.size(); ++k) {
+          cross.middleRows<2>(2 * static_cast<Eigen::Index>(k)) =
+              model.covariance(hypothesis[k], pairing);
         }
         lower.solveInPlace(cross);
         const Vec2 innovation = model.innovation(pairing) - cross.transpose() * whitened;

@@ -29,8 +29,8 @@ class LinearScanModel : public PairingModel {
     return z[p.measurement] - A[p.measurement] * feature_mean[p.feature];
   }
   Mat2 covariance(const Pairing& a, const Pairing& b) const override {
-    const Mat2 relative = block(2 + 2 * a.feature, 2 + 2 * b.feature) - block(2 + 2 * a.feature, 0) -
-                          block(0, 2 + 2 * b.feature) + block(0, 0);
+    const Eigen::Index fa = 2 + 2 * a.feature, fb = 2 + 2 * b.feature;
+    const Mat2 relative = block(fa, fb) - block(fa, 0) - block(0, fb) + block(0, 0);
     Mat2 c = A[a.measurement] * relative * A[b.measurement].transpose();
     if (a.measurement == b.measurement) c += R[a.measurement];
     return c;
@@ -61,7 +61,9 @@ Problem random_problem(std::mt19937_64& rng, int max_measurements) {
   model.P = factor * factor.transpose() + 0.001 * Eigen::MatrixXd::Identity(dim, dim);
   const Eigen::VectorXd truth = model.P.llt().matrixL() * Eigen::VectorXd::NullaryExpr(
                                                               dim, [&]() { return normal(rng); });
-  for (int j = 0; j < n; ++j) model.feature_mean.emplace_back(2.0 * uniform(rng), 2.0 * uniform(rng));
+  for (int j = 0; j < n; ++j) {
+    model.feature_mean.emplace_back(2.0 * uniform(rng), 2.0 * uniform(rng));
+  }
 
   const int m = 1 + static_cast<int>(uniform(rng) * max_measurements);
   std::vector<int> features(n);

@@ -61,7 +61,9 @@ JoinProblem grid_join(std::uint64_t seed, int first_columns_begin, int first_col
   for (int c = first_columns_begin; c < first_columns_end; ++c) {
     for (int r = 0; r < rows; ++r) first_true.emplace_back(c * kSpacing, r * kSpacing);
   }
-  for (const Vec2& spurious : {Vec2(3.5, 4.5), Vec2(5.5, 2.5)}) first_true.push_back(spurious * kSpacing);
+  for (const Vec2& spurious : {Vec2(3.5, 4.5), Vec2(5.5, 2.5)}) {
+    first_true.push_back(spurious * kSpacing);
+  }
   for (int c = second_columns_begin; c < second_columns_end; ++c) {
     for (int r = 0; r < rows; ++r) {
       second_true.emplace_back(c * kSpacing, r * kSpacing);
@@ -107,8 +109,10 @@ JoinProblem grid_join(std::uint64_t seed, int first_columns_begin, int first_col
   for (Eigen::Index i = 0; i < n1; ++i) hash.insert(static_cast<int>(i), model.x.segment<2>(2 * i));
   std::vector<int> nearby;
   for (Eigen::Index j = 0; j < n2; ++j) {
-    const Mat2 spread = model.P.block<2, 2>(2 * (n1 + j), 2 * (n1 + j)) + sigma * sigma * Mat2::Identity();
-    const double radius = std::sqrt(gate * Eigen::SelfAdjointEigenSolver<Mat2>(spread).eigenvalues().maxCoeff());
+    const Eigen::Index row = 2 * (n1 + j);
+    const Mat2 spread = model.P.block<2, 2>(row, row) + sigma * sigma * Mat2::Identity();
+    const double largest = Eigen::SelfAdjointEigenSolver<Mat2>(spread).eigenvalues().maxCoeff();
+    const double radius = std::sqrt(gate * largest);
     hash.query(model.x.segment<2>(2 * (n1 + j)), radius, nearby);
     std::sort(nearby.begin(), nearby.end());
     problem.candidates.push_back(nearby);
@@ -127,7 +131,9 @@ TEST(Rjc, FindsTheTruePairingWhereNearestNeighbourFails) {
   const JoinProblem problem = grid_join(1, 0, 6, 3, 9);
   const std::vector<int> nn = nearest_neighbour(problem.candidates, problem.model, 0.99);
   int nn_wrong = 0;
-  for (std::size_t j = 0; j < nn.size(); ++j) nn_wrong += nn[j] != kStar && nn[j] != problem.truth[j];
+  for (std::size_t j = 0; j < nn.size(); ++j) {
+    nn_wrong += nn[j] != kStar && nn[j] != problem.truth[j];
+  }
   EXPECT_GE(nn_wrong, 10);  // the layout is ambiguous for individual compatibility
 
   const RjcResult result = rjc(problem.candidates, problem.model);
@@ -149,6 +155,16 @@ TEST(Rjc, FindsTheTruePairingForManySeeds) {
     EXPECT_EQ(rjc(problem.candidates, problem.model, options).feature_of, problem.truth)
         << "seed " << seed;
   }
+}
+
+TEST(Rjc, WithoutVerificationReportsNoJointDistance) {
+  const JoinProblem problem = grid_join(9, 0, 6, 3, 9);
+  RjcOptions options;
+  options.verify = false;
+  const RjcResult result = rjc(problem.candidates, problem.model, options);
+  EXPECT_EQ(result.feature_of, problem.truth);
+  EXPECT_EQ(result.dropped, 0);
+  EXPECT_TRUE(std::isnan(result.joint_distance_sq));
 }
 
 TEST(Rjc, SameSeedSameResult) {
@@ -195,8 +211,9 @@ TEST(Rjc, SmallOverlapRunsPlainJcbb) {
 TEST(Rjc, VerificationDropsTheInconsistentPairing) {
   const JoinProblem problem = grid_join(7, 0, 6, 3, 9);
   std::vector<int> feature_of = problem.truth;
-  const int spurious = static_cast<int>(feature_of.size()) - 1;  // second-map cell centre (5.5, 0.5)
-  feature_of[spurious] = 5 * 6 + 0;                              // first-map feature (5, 0)
+  // Pair the second map's spurious feature at cell centre (5.5, 0.5) with grid point (5, 0).
+  const std::size_t spurious = feature_of.size() - 1;
+  feature_of[spurious] = 5 * 6 + 0;
   ASSERT_GT(joint_distance_sq(feature_of, problem.model), chi2_quantile(2 * 19, 0.99));
   double distance_sq = 0.0;
   EXPECT_EQ(enforce_joint_compatibility(feature_of, problem.model, 0.99, &distance_sq), 1);
