@@ -9,6 +9,7 @@ void define_errors(py::module_& m);
 void define_geometry(py::module_& m);
 void define_config(py::module_& m);
 void define_slam_filter(py::module_& m);
+void define_dc_slam(py::module_& m);
 void define_datasets(py::module_& m);
 }  // namespace dcslam::bindings
 
@@ -19,5 +20,6 @@ PYBIND11_MODULE(_core, m) {
   dcslam::bindings::define_geometry(m);
   dcslam::bindings::define_config(m);
   dcslam::bindings::define_slam_filter(m);
+  dcslam::bindings::define_dc_slam(m);
   dcslam::bindings::define_datasets(m);
 }

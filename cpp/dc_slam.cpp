@@ -294,7 +294,16 @@ std::vector<std::int64_t> DCSlam::resolve(const std::vector<std::int64_t>& ids) 
   return resolved;
 }
 
-const RunStats& DCSlam::stats() const { return stats_; }
+const RunStats& DCSlam::stats() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::int64_t finished = 0;
+  for (const JoinEvent& event : events_) finished += event.step_finished >= 0 ? 1 : 0;
+  stats_.counters["local_maps_closed"] = static_cast<double>(closed_local_maps_);
+  stats_.counters["joins_created"] = static_cast<double>(events_.size());
+  stats_.counters["joins_finished"] = static_cast<double>(finished);
+  stats_.counters["stack_depth"] = static_cast<double>(stack_.size());
+  return stats_;
+}
 
 std::vector<JoinEvent> DCSlam::joins() const {
   std::lock_guard<std::mutex> lock(mutex_);

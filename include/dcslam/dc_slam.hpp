@@ -111,7 +111,7 @@ class DCSlam : public SlamFilter {
   bool worker_busy_ = false;
   std::thread worker_;
 
-  RunStats stats_;
+  mutable RunStats stats_;  // counters are refreshed by stats()
 };
 
 }  // namespace dcslam

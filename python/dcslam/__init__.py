@@ -9,7 +9,7 @@ from . import geometry
 from ._core import InvalidArgument, ParseError
 from .config import SlamConfig
 from . import datasets
-from .slam import EkfSlam, Estimate, SlamStats
+from .slam import DCSlam, DCSlamStats, EkfSlam, Estimate, SlamStats
 
 __all__ = [
     "__version__",
@@ -18,6 +18,8 @@ __all__ = [
     "InvalidArgument",
     "ParseError",
     "SlamConfig",
+    "DCSlam",
+    "DCSlamStats",
     "EkfSlam",
     "Estimate",
     "SlamStats",

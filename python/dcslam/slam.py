@@ -15,7 +15,7 @@ import numpy as np
 from . import _core
 from .config import SlamConfig
 
-__all__ = ["Estimate", "SlamStats", "SlamFilter", "EkfSlam"]
+__all__ = ["Estimate", "SlamStats", "DCSlamStats", "SlamFilter", "EkfSlam", "DCSlam"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -154,3 +154,50 @@ class EkfSlam(SlamFilter):
     def __init__(self, cfg: Optional[SlamConfig] = None):
         cfg = SlamConfig() if cfg is None else cfg
         super().__init__(_core.EkfSlam(cfg._to_core()), cfg)
+
+
+@dataclasses.dataclass(frozen=True)
+class DCSlamStats(SlamStats):
+    """:class:`SlamStats` plus the D&C join events and the stack's shape.
+
+    Attributes:
+        joins: one dict per join in creation order: ``index``, ``leaves`` (local maps in the
+            result), ``step_created``, ``step_finished`` (-1 while pending),
+            ``features_first``, ``features_second``, ``features_joined``, ``overlap``,
+            ``pairings``, ``tries`` (RJC), ``seconds`` (summed over the slices it ran in),
+            ``seconds_association``, ``work_units``.
+        stack: (local maps, features) of each map on the stack, bottom first.
+    """
+
+    joins: List[Dict[str, Any]] = dataclasses.field(default_factory=list)
+    stack: List[tuple] = dataclasses.field(default_factory=list)
+
+
+class DCSlam(SlamFilter):
+    """Divide and Conquer SLAM (Paz et al. 2007, Algorithm 2; DESIGN.md §4-§5).
+
+    Local maps of ``cfg.local_map_features`` features are built with the sparse-aware EKF
+    and joined as a binary tree with map joining 2.0; the result is the EKF's answer (exact
+    in the linear-Gaussian case) at O(n) cost per step (amortized) and O(n^2) in total.
+    Joins run immediately (``amortize=False``), spread over the following steps
+    (``amortize=True``, default) or on a background thread (``threaded_joins=True``), with
+    bitwise the same result. :meth:`estimate` joins the whole stack on copies (anytime) and
+    never disturbs the run; :meth:`pose` is cheap.
+
+    Data association at joins: ``cfg.join_association`` (``"rjc"``, ``"jcbb"`` or
+    ``"known"``); :meth:`resolve` maps the id of a feature merged at a join to the feature
+    that holds it now.
+    """
+
+    def __init__(self, cfg: Optional[SlamConfig] = None):
+        cfg = SlamConfig() if cfg is None else cfg
+        super().__init__(_core.DCSlam(cfg._to_core()), cfg)
+
+    @property
+    def stats(self) -> DCSlamStats:
+        """Per-step timings and counts, join events and the stack; see :class:`DCSlamStats`."""
+        return DCSlamStats(**self._core.stats, joins=self._core.joins(), stack=self._core.stack_shape())
+
+    def finish_joins(self) -> None:
+        """Completes every queued join now (waits for the worker in threaded mode)."""
+        self._core.finish_joins()

@@ -1,6 +1,7 @@
 """EkfSlam against independent oracles: batch least squares (linear-Gaussian case), a naive
 dense EKF written here with numpy, central differences; plus input validation."""
 
+import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -53,12 +54,25 @@ def known_config(observation):
 # --- 1. linear-Gaussian exactness against batch weighted least squares ---------------------
 
 
-def test_linear_gaussian_case_equals_batch_least_squares():
+LINEAR_FILTERS = [
+    ("ekf", {}),
+    ("dc", dict(local_map_features=2, amortize=False)),
+    ("dc", dict(local_map_features=3, amortize=True)),
+    ("dc", dict(local_map_features=5, threaded_joins=True)),
+    ("dc", dict(local_map_features=3, amortize=True, join_association="jcbb")),
+]
+
+
+@pytest.mark.parametrize("kind, options", LINEAR_FILTERS)
+def test_linear_gaussian_case_equals_batch_least_squares(kind, options):
     """Known headings (zero heading variance) + Cartesian observations make both models linear
-    in the positions, so the EKF's final pose, map and marginal covariance must equal the
-    batch solution over all poses and features, marginalised to [p_K; features]."""
+    in the positions, so the final pose, map and marginal covariance of the EKF and of D&C
+    (any local map size, any join mode) must equal the batch solution over all poses and
+    features, marginalised to [p_K; features]."""
     steps = circle_scenario(40, "point", seed=11, heading_sigma=0.0)
-    slam = dcslam.EkfSlam(known_config("point"))
+    cfg = dataclasses.replace(known_config("point"), join_association="known")
+    cfg = dataclasses.replace(cfg, **options)
+    slam = dcslam.EkfSlam(cfg) if kind == "ekf" else dcslam.DCSlam(cfg)
     for s in steps:
         slam.predict(s.u, s.Q)
         slam.update(s.z, s.R, s.landmark_ids)
