@@ -8,6 +8,7 @@ namespace dcslam::bindings {
 void define_errors(py::module_& m);
 void define_geometry(py::module_& m);
 void define_config(py::module_& m);
+void define_simulator(py::module_& m);
 }  // namespace dcslam::bindings
 
 PYBIND11_MODULE(_core, m) {
@@ -16,4 +17,5 @@ PYBIND11_MODULE(_core, m) {
   dcslam::bindings::define_errors(m);
   dcslam::bindings::define_geometry(m);
   dcslam::bindings::define_config(m);
+  dcslam::bindings::define_simulator(m);
 }
