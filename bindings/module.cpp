@@ -11,6 +11,7 @@ void define_config(py::module_& m);
 void define_slam_filter(py::module_& m);
 void define_dc_slam(py::module_& m);
 void define_datasets(py::module_& m);
+void define_simulator(py::module_& m);
 }  // namespace dcslam::bindings
 
 PYBIND11_MODULE(_core, m) {
@@ -22,4 +23,5 @@ PYBIND11_MODULE(_core, m) {
   dcslam::bindings::define_slam_filter(m);
   dcslam::bindings::define_dc_slam(m);
   dcslam::bindings::define_datasets(m);
+  dcslam::bindings::define_simulator(m);
 }
