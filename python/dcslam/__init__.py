@@ -8,5 +8,19 @@ from ._version import __version__
 from . import geometry
 from ._core import InvalidArgument, ParseError
 from .config import SlamConfig
+from .consistency import chi2_threshold, consistency_index, nees
+from .simulation import Simulation, SimulationConfig, simulate
 
-__all__ = ["__version__", "geometry", "InvalidArgument", "ParseError", "SlamConfig"]
+__all__ = [
+    "__version__",
+    "geometry",
+    "InvalidArgument",
+    "ParseError",
+    "SlamConfig",
+    "Simulation",
+    "SimulationConfig",
+    "simulate",
+    "nees",
+    "chi2_threshold",
+    "consistency_index",
+]
