@@ -68,8 +68,9 @@ class SimulationConfig:
         features_per_step: expected features in the sensor footprint; sets the density to
             ``features_per_step / (fov / 2 * (max_range**2 - min_range**2))``.
         num_features: if set, this many features instead (density follows): 100 to 20,000+.
-        world_margin: features fill the trajectory's bounding box grown by this margin;
-            ``None`` = ``max_range + |sensor offset|``.
+        world_margin: features fill the corridor of points within this distance of the
+            trajectory's positions (not its bounding box: a loop's unseen interior stays
+            empty); ``None`` = ``max_range + |sensor offset|``, so every footprint is full.
         clutter: expected fraction of all measurements that are spurious, in [0, 1);
             spurious ones are uniform over the footprint and have ``true_ids == -1``.
     """

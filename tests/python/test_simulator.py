@@ -152,13 +152,24 @@ def test_lawn_and_snail_shapes():
     assert np.linalg.norm(snail.poses[-1, :2] - centre) < 0.25 * np.ptp(snail.poses[:, 0])
 
 
-def test_features_cover_the_trajectory_with_a_sensor_range_margin():
-    sim = dcslam.simulate("straight", steps=200)
-    assert sim.landmarks[:, 0].min() >= -3.0 and sim.landmarks[:, 0].max() <= 203.0
-    assert np.abs(sim.landmarks[:, 1]).max() <= 3.0
-    # ... and fills it: the field's edges are populated (about 0.57 features per m^2).
-    assert sim.landmarks[:, 0].min() < -2.0 and sim.landmarks[:, 0].max() > 202.0
-    assert sim.landmarks[:, 1].min() < -2.8 and sim.landmarks[:, 1].max() > 2.8
+@pytest.mark.parametrize("trajectory", TRAJECTORIES)
+def test_features_fill_the_corridor_around_the_trajectory(trajectory):
+    sim = dcslam.simulate(trajectory, steps=300, seed=6)
+    margin = sim.config.max_range
+    distance = np.linalg.norm(sim.landmarks[:, None, :] - sim.poses[None, :, :2], axis=2).min(axis=1)
+    assert distance.max() <= margin
+    # Uniform over the corridor: each distance band holds features in proportion to its
+    # area, estimated by Monte Carlo over the bounding box.
+    rng = np.random.default_rng(0)
+    low, high = sim.poses[:, :2].min(axis=0) - margin, sim.poses[:, :2].max(axis=0) + margin
+    probe = rng.uniform(low, high, size=(20000, 2))
+    probe_distance = np.linalg.norm(probe[:, None, :] - sim.poses[None, :, :2], axis=2).min(axis=1)
+    box_area = np.prod(high - low)
+    density = 16 / (math.pi * (margin**2 - sim.config.min_range**2))
+    for band in [(0, margin / 2), (margin / 2, margin)]:
+        area = box_area * np.mean((probe_distance > band[0]) & (probe_distance <= band[1]))
+        count = np.sum((distance > band[0]) & (distance <= band[1]))
+        assert count == pytest.approx(density * area, rel=0.1), band
 
 
 @pytest.mark.parametrize("rate", [0.1, 0.4])
