@@ -157,59 +157,140 @@ std::vector<double> commanded_turns(const SimulationConfig& config) {
   return turns;
 }
 
-// Buckets features in square cells of the sensor's range, so that finding the features
-// around a sensor touches a bounded number of cells whatever the map size.
-class FeatureGrid {
+// Square cells over a rectangle; coordinates outside it clamp to the border cells.
+struct GridShape {
+  GridShape(const Vec2& lower, const Vec2& upper, double cell_size)
+      : origin(lower),
+        cell_size(cell_size),
+        columns(count(upper.x() - lower.x())),
+        rows(count(upper.y() - lower.y())) {}
+
+  Eigen::Index count(double length) const {
+    return std::max<Eigen::Index>(1, static_cast<Eigen::Index>(std::ceil(length / cell_size)));
+  }
+  Eigen::Index clamp(double offset, Eigen::Index cells) const {
+    const double cell = std::floor(offset / cell_size);
+    if (!(cell > 0.0)) return 0;
+    return std::min(cells - 1, static_cast<Eigen::Index>(cell));
+  }
+  Eigen::Index column_of(double x) const { return clamp(x - origin.x(), columns); }
+  Eigen::Index row_of(double y) const { return clamp(y - origin.y(), rows); }
+  Eigen::Index size() const { return columns * rows; }
+
+  // Calls visit(cell) for every cell meeting the square of half side `radius` at `centre`.
+  template <class Visit>
+  void for_each_cell_near(const Vec2& centre, double radius, Visit&& visit) const {
+    const Eigen::Index c0 = column_of(centre.x() - radius), c1 = column_of(centre.x() + radius);
+    const Eigen::Index r0 = row_of(centre.y() - radius), r1 = row_of(centre.y() + radius);
+    for (Eigen::Index r = r0; r <= r1; ++r) {
+      for (Eigen::Index c = c0; c <= c1; ++c) visit(r * columns + c);
+    }
+  }
+
+  Vec2 origin;
+  double cell_size;
+  Eigen::Index columns, rows;
+};
+
+// Buckets points in the cells of a GridShape, so that finding the points around a position
+// touches a bounded number of cells whatever the map size.
+class PointGrid {
  public:
-  FeatureGrid(const Simulation::Rows<2>& features, const Vec2& origin, double cell_size,
-              Eigen::Index columns, Eigen::Index rows)
-      : origin_(origin), cell_size_(cell_size), columns_(columns), rows_(rows) {
-    std::vector<Eigen::Index> cell_of(static_cast<std::size_t>(features.rows()));
-    cell_start_.assign(static_cast<std::size_t>(columns * rows + 1), 0);
-    for (Eigen::Index i = 0; i < features.rows(); ++i) {
+  PointGrid(const Simulation::Rows<2>& points, const GridShape& shape) : shape_(shape) {
+    std::vector<Eigen::Index> cell_of(static_cast<std::size_t>(points.rows()));
+    cell_start_.assign(static_cast<std::size_t>(shape.size() + 1), 0);
+    for (Eigen::Index i = 0; i < points.rows(); ++i) {
       const Eigen::Index cell =
-          row_of(features(i, 1)) * columns_ + column_of(features(i, 0));
+          shape.row_of(points(i, 1)) * shape.columns + shape.column_of(points(i, 0));
       cell_of[static_cast<std::size_t>(i)] = cell;
       ++cell_start_[static_cast<std::size_t>(cell + 1)];
     }
     std::partial_sum(cell_start_.begin(), cell_start_.end(), cell_start_.begin());
-    members_.resize(static_cast<std::size_t>(features.rows()));
+    members_.resize(static_cast<std::size_t>(points.rows()));
     std::vector<Eigen::Index> fill(cell_start_.begin(), cell_start_.end() - 1);
-    for (Eigen::Index i = 0; i < features.rows(); ++i) {
-      members_[static_cast<std::size_t>(fill[static_cast<std::size_t>(cell_of[i])]++)] = i;
+    for (Eigen::Index i = 0; i < points.rows(); ++i) {
+      const auto cell = static_cast<std::size_t>(cell_of[static_cast<std::size_t>(i)]);
+      members_[static_cast<std::size_t>(fill[cell]++)] = i;
     }
   }
 
-  // Calls visit(feature index) for every feature within `radius` of `centre` (and some more).
+  // Calls visit(point index) for every point within `radius` of `centre` (and some more).
   template <class Visit>
   void for_each_near(const Vec2& centre, double radius, Visit&& visit) const {
-    const Eigen::Index c0 = column_of(centre.x() - radius), c1 = column_of(centre.x() + radius);
-    const Eigen::Index r0 = row_of(centre.y() - radius), r1 = row_of(centre.y() + radius);
-    for (Eigen::Index r = r0; r <= r1; ++r) {
-      for (Eigen::Index c = c0; c <= c1; ++c) {
-        const auto cell = static_cast<std::size_t>(r * columns_ + c);
-        for (Eigen::Index k = cell_start_[cell]; k < cell_start_[cell + 1]; ++k) {
-          visit(members_[static_cast<std::size_t>(k)]);
-        }
+    shape_.for_each_cell_near(centre, radius, [&](Eigen::Index cell) {
+      const auto c = static_cast<std::size_t>(cell);
+      for (Eigen::Index k = cell_start_[c]; k < cell_start_[c + 1]; ++k) {
+        visit(members_[static_cast<std::size_t>(k)]);
       }
-    }
+    });
   }
 
  private:
-  Eigen::Index clamp_cell(double coordinate, Eigen::Index count) const {
-    const double cell = std::floor(coordinate / cell_size_);
-    if (!(cell > 0.0)) return 0;
-    return std::min(count - 1, static_cast<Eigen::Index>(cell));
-  }
-  Eigen::Index column_of(double x) const { return clamp_cell(x - origin_.x(), columns_); }
-  Eigen::Index row_of(double y) const { return clamp_cell(y - origin_.y(), rows_); }
-
-  Vec2 origin_;
-  double cell_size_;
-  Eigen::Index columns_, rows_;
+  GridShape shape_;
   std::vector<Eigen::Index> cell_start_;
   std::vector<Eigen::Index> members_;
 };
+
+// The field: features uniform over the corridor of points within `margin` of the trajectory's
+// positions (the region the trajectory covers, plus the sensor's reach), not its bounding
+// box, which for a long loop would be mostly interior that is never seen. Drawn by rejection
+// from the grid cells that meet the corridor. Returns the corridor's area (estimated from the
+// acceptance rate when the count is fixed).
+double place_features(const SimulationConfig& config, const Simulation::Rows<2>& positions,
+                      double margin, Random& random, Simulation::Rows<2>& landmarks) {
+  const Vec2 lower = positions.colwise().minCoeff().transpose().array() - margin;
+  const Vec2 upper = positions.colwise().maxCoeff().transpose().array() + margin;
+  // Cells no smaller than a step keep the grid small whatever the margin.
+  const GridShape shape(lower, upper, std::max(margin, config.step_length));
+  const PointGrid trajectory(positions, shape);
+  std::vector<char> meets_corridor(static_cast<std::size_t>(shape.size()), 0);
+  for (Eigen::Index i = 0; i < positions.rows(); ++i) {
+    shape.for_each_cell_near(positions.row(i).transpose(), margin, [&](Eigen::Index cell) {
+      meets_corridor[static_cast<std::size_t>(cell)] = 1;
+    });
+  }
+  std::vector<Eigen::Index> cells;
+  for (Eigen::Index cell = 0; cell < shape.size(); ++cell) {
+    if (meets_corridor[static_cast<std::size_t>(cell)]) cells.push_back(cell);
+  }
+  const double cell = shape.cell_size;
+  const double candidate_area = static_cast<double>(cells.size()) * cell * cell;
+
+  const auto draw = [&]() -> std::optional<Vec2> {
+    const Eigen::Index index = cells[random.index_below(cells.size())];
+    const double column = static_cast<double>(index % shape.columns) + random.uniform();
+    const double row = static_cast<double>(index / shape.columns) + random.uniform();
+    const Vec2 point = shape.origin + cell * Vec2(column, row);
+    bool inside = false;
+    trajectory.for_each_near(point, margin, [&](Eigen::Index i) {
+      inside = inside || (positions.row(i).transpose() - point).squaredNorm() <= margin * margin;
+    });
+    if (!inside) return std::nullopt;
+    return point;
+  };
+
+  std::vector<Vec2> accepted;
+  std::int64_t drawn = 0;
+  if (config.num_features) {
+    while (static_cast<std::int64_t>(accepted.size()) < *config.num_features) {
+      ++drawn;
+      if (const auto point = draw()) accepted.push_back(*point);
+    }
+  } else {
+    const double density = config.features_per_step / config.footprint_area();
+    drawn = std::llround(density * candidate_area);
+    for (std::int64_t k = 0; k < drawn; ++k) {
+      if (const auto point = draw()) accepted.push_back(*point);
+    }
+  }
+  landmarks.resize(static_cast<Eigen::Index>(accepted.size()), 2);
+  for (std::size_t i = 0; i < accepted.size(); ++i) {
+    landmarks.row(static_cast<Eigen::Index>(i)) = accepted[i].transpose();
+  }
+  return drawn > 0 ? candidate_area * static_cast<double>(accepted.size()) /
+                         static_cast<double>(drawn)
+                   : candidate_area;
+}
 
 Mat2 measurement_covariance(const SimulationConfig& config, double true_range) {
   if (config.observation == ObservationModel::Point) {
@@ -277,8 +358,8 @@ void SimulationConfig::validate() const {
           "features_per_step: must be finite and > 0, got " + str(features_per_step));
   require(!num_features || *num_features >= 0,
           "num_features: must be >= 0, got " + std::to_string(num_features.value_or(0)));
-  require(!world_margin || non_negative(*world_margin),
-          "world_margin: must be finite and >= 0, got " + str(world_margin.value_or(0.0)));
+  require(!world_margin || positive(*world_margin),
+          "world_margin: must be finite and > 0, got " + str(world_margin.value_or(0.0)));
   require(clutter >= 0.0 && clutter < 1.0, "clutter: must lie in [0, 1), got " + str(clutter));
 }
 
@@ -297,32 +378,18 @@ Simulation simulate(const SimulationConfig& config) {
     sim.poses.row(k + 1) = compose(sim.poses.row(k).transpose(), command).transpose();
   }
 
-  // The field: uniform over the trajectory's bounding box plus a margin.
   const double margin =
       config.world_margin.value_or(config.max_range + config.sensor_offset.head<2>().norm());
-  const Vec2 lower = sim.poses.leftCols<2>().colwise().minCoeff().transpose().array() - margin;
-  const Vec2 upper = sim.poses.leftCols<2>().colwise().maxCoeff().transpose().array() + margin;
-  const Vec2 extent = upper - lower;
-  const double world_area = extent.prod();
-  const double density = config.features_per_step / config.footprint_area();
-  const std::int64_t num_features =
-      config.num_features.value_or(std::llround(density * world_area));
-  sim.landmarks.resize(num_features, 2);
-  for (std::int64_t i = 0; i < num_features; ++i) {
-    sim.landmarks(i, 0) = random.uniform(lower.x(), upper.x());
-    sim.landmarks(i, 1) = random.uniform(lower.y(), upper.y());
-  }
-  const double cell_size = config.max_range;
-  const auto cells = [&](double length) {
-    return std::max<Eigen::Index>(1, static_cast<Eigen::Index>(std::ceil(length / cell_size)));
-  };
-  const FeatureGrid grid(sim.landmarks, lower, cell_size, cells(extent.x()), cells(extent.y()));
+  const Simulation::Rows<2> positions = sim.poses.leftCols<2>();
+  const double corridor_area = place_features(config, positions, margin, random, sim.landmarks);
+  const Vec2 lower = positions.colwise().minCoeff().transpose().array() - margin;
+  const Vec2 upper = positions.colwise().maxCoeff().transpose().array() + margin;
+  const PointGrid grid(sim.landmarks, GridShape(lower, upper, config.max_range));
 
   // Clutter: a Poisson number per step whose mean makes spurious measurements the fraction
   // `clutter` of all of them, given the features expected in the footprint.
-  const double expected_visible =
-      world_area > 0.0 ? static_cast<double>(num_features) / world_area * config.footprint_area()
-                       : 0.0;
+  const double expected_visible = static_cast<double>(sim.landmarks.rows()) / corridor_area *
+                                  config.footprint_area();
   const double clutter_mean = config.clutter / (1.0 - config.clutter) * expected_visible;
 
   Vec3 odometry_sigma = config.odometry_sigma;

@@ -69,7 +69,8 @@ struct SimulationConfig {
   // average; num_features, when set, fixes the count instead (the density follows).
   double features_per_step = 16.0;
   std::optional<std::int64_t> num_features;
-  // Features cover the bounding box of the trajectory grown by this margin; unset =
+  // Features cover the points within this distance of the trajectory's positions (a
+  // corridor, not the bounding box: a loop's unseen interior stays empty); unset =
   // max_range + |sensor offset|, so every footprint lies inside the field.
   std::optional<double> world_margin;
 

@@ -9,6 +9,8 @@ from . import geometry
 from ._core import InvalidArgument, ParseError
 from .config import SlamConfig
 from . import datasets
+from .consistency import chi2_threshold, consistency_index, nees
+from .simulation import Simulation, SimulationConfig, simulate
 from .slam import DCSlam, DCSlamStats, EkfSlam, Estimate, SlamStats
 
 __all__ = [
@@ -23,4 +25,10 @@ __all__ = [
     "EkfSlam",
     "Estimate",
     "SlamStats",
+    "Simulation",
+    "SimulationConfig",
+    "simulate",
+    "nees",
+    "chi2_threshold",
+    "consistency_index",
 ]

@@ -1,0 +1,230 @@
+"""The simulated experiments of Paz et al. 2007 (§III.B and Fig. 3), run in C++.
+
+A uniform random field of point features; the robot moves 1 m a step; odometry noise
+sigma = 0.10 m along, 0.05 m across and 0.5 deg in heading; a range–bearing sensor of 3 m
+range seeing about 16 features a step, with sigma 5 % of the range and 1 deg in bearing;
+four trajectories: ``"straight"`` (forward exploration), ``"loop"`` (a square that closes
+on its start), ``"lawn_mowing"`` (parallel back-and-forth lanes) and ``"snail"`` (an
+inward square spiral). Ground truth for poses, features and every measurement's feature.
+
+::
+
+    sim = dcslam.simulate("snail", steps=500, seed=0)
+    for s in sim.steps:          # step i goes from sim.poses[i] to sim.poses[i + 1]
+        slam.predict(s.u, s.Q)   # u: the noisy relative motion, Q its covariance
+        slam.update(s.z, s.R)    # taken at sim.poses[i + 1]; s.true_ids: ground truth
+
+Noise model: the true poses follow the commanded motions exactly; ``u = u_true + n`` with
+``n ~ N(0, Q)``, ``Q = diag(odometry_sigma**2)``. Measurements are
+``observe(true pose, true feature) + v``, ``v ~ N(0, R)``, with the range sigma computed
+from the TRUE range (so ``R`` does not depend on the noise drawn). Every array is
+read-only and shares memory with the single C++ run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Iterator, Optional, Tuple, Union, overload
+
+import numpy as np
+
+from . import _core
+
+__all__ = ["SimulationConfig", "Simulation", "Step", "Steps", "simulate"]
+
+TRAJECTORIES = ("straight", "loop", "lawn_mowing", "snail")
+
+
+@dataclasses.dataclass
+class SimulationConfig:
+    """Every parameter of a simulation; the defaults are the paper's (§III.B).
+
+    Angles are in radians, lengths in metres. Values are checked in C++ when the simulation
+    runs (or by :meth:`validate`); a bad one raises ``ValueError`` naming it.
+
+    Attributes:
+        trajectory: ``"straight"``, ``"loop"``, ``"lawn_mowing"`` or ``"snail"``.
+        steps: number of motions; the run has ``steps + 1`` poses.
+        seed: seeds the one ``mt19937_64`` all draws come from (same seed, same arrays).
+        step_length: distance moved each step.
+        side_steps: loop side, lawn lane length or snail outer side, in steps. ``None``
+            chooses it from ``steps``: loop side ``steps // 4`` (the loop closes on its
+            start, further steps run more laps); lane length ``round(sqrt(steps *
+            lane_spacing_steps))`` (a roughly square swept region); the smallest snail whose
+            spiral holds ``steps``.
+        lane_spacing_steps: distance between lawn lanes and between snail rings, in steps
+            (3 = the sensor range, so neighbouring passes share features).
+        odometry_sigma: standard deviations along, across and in heading.
+        zero_heading_noise: force the heading sigma to zero (known heading: with
+            ``observation="point"`` the problem is linear).
+        observation: ``"range_bearing"`` or ``"point"`` ((x, y) in the sensor frame).
+        sensor_offset: sensor pose (x, y, phi) on the robot.
+        max_range, min_range: detection range; the blind zone below ``min_range`` keeps
+            ``R`` positive definite (range sigma is proportional to range).
+        fov: full field of view, centred on the sensor's x axis (``2 pi``: all around).
+        range_sigma_fraction, bearing_sigma: range-bearing noise (sigma_r = fraction * r).
+        point_sigma: isotropic sigma of the ``"point"`` model.
+        features_per_step: expected features in the sensor footprint; sets the density to
+            ``features_per_step / (fov / 2 * (max_range**2 - min_range**2))``.
+        num_features: if set, this many features instead (density follows): 100 to 20,000+.
+        world_margin: features fill the corridor of points within this distance of the
+            trajectory's positions (not its bounding box: a loop's unseen interior stays
+            empty); ``None`` = ``max_range + |sensor offset|``, so every footprint is full.
+        clutter: expected fraction of all measurements that are spurious, in [0, 1);
+            spurious ones are uniform over the footprint and have ``true_ids == -1``.
+    """
+
+    trajectory: str = "straight"
+    steps: int = 500
+    seed: int = 0
+    step_length: float = 1.0
+    side_steps: Optional[int] = None
+    lane_spacing_steps: int = 3
+    odometry_sigma: Tuple[float, float, float] = (0.10, 0.05, math.radians(0.5))
+    zero_heading_noise: bool = False
+    observation: str = "range_bearing"
+    sensor_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
+    max_range: float = 3.0
+    min_range: float = 0.1
+    fov: float = 2 * math.pi
+    range_sigma_fraction: float = 0.05
+    bearing_sigma: float = math.radians(1.0)
+    point_sigma: float = 0.05
+    features_per_step: float = 16.0
+    num_features: Optional[int] = None
+    world_margin: Optional[float] = None
+    clutter: float = 0.0
+
+    def _to_core(self) -> "_core.SimulationConfig":
+        core = _core.SimulationConfig()
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            try:
+                setattr(core, field.name, value)
+            except TypeError as error:  # wrong Python type for a compiled field
+                raise ValueError(
+                    f"SimulationConfig.{field.name}: invalid value {value!r} ({error})"
+                ) from None
+        core.validate()
+        return core
+
+    def validate(self) -> "SimulationConfig":
+        """Checks every field; raises ``ValueError`` naming the first bad one."""
+        self._to_core()
+        return self
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+class Step:
+    """One step: predict with ``u`` (3,) and ``Q`` (3, 3), then update with ``z`` (m, 2),
+    ``R`` (m, 2, 2); ``true_ids`` (m,) int64 are the features measured (-1: clutter).
+    All are read-only views into the simulation's arrays."""
+
+    __slots__ = ("index", "u", "Q", "z", "R", "true_ids")
+
+    def __init__(self, index: int, u, Q, z, R, true_ids):
+        self.index = index
+        self.u = u
+        self.Q = Q
+        self.z = z
+        self.R = R
+        self.true_ids = true_ids
+
+    def __repr__(self) -> str:
+        return f"Step({self.index}, {len(self.z)} measurements)"
+
+
+class Steps:
+    """The steps of a simulation as a sequence: ``len``, indexing (negative too), slicing
+    and iteration, each step built on demand as views."""
+
+    def __init__(self, sim: "Simulation"):
+        self._sim = sim
+
+    def __len__(self) -> int:
+        return len(self._sim.odometry)
+
+    @overload
+    def __getitem__(self, index: int) -> Step: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list: ...
+
+    def __getitem__(self, index: Union[int, slice]):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        count = len(self)
+        i = int(index)
+        if i < 0:
+            i += count
+        if not 0 <= i < count:
+            raise IndexError(f"step index {index} out of range for {count} steps")
+        sim = self._sim
+        first, last = sim.step_offsets[i], sim.step_offsets[i + 1]
+        return Step(
+            i,
+            sim.odometry[i],
+            sim.Q,
+            sim.measurements[first:last],
+            sim.measurement_covariances[first:last],
+            sim.true_ids[first:last],
+        )
+
+    def __iter__(self) -> Iterator[Step]:
+        return (self[i] for i in range(len(self)))
+
+
+class Simulation:
+    """A simulated run (see :func:`simulate`).
+
+    Attributes:
+        config: the :class:`SimulationConfig` that produced it.
+        landmarks: (N, 2) true feature positions; ``true_ids`` index its rows.
+        poses: (steps + 1, 3) true robot poses, ``poses[0] = (0, 0, 0)``.
+        steps: :class:`Steps`, one :class:`Step` per motion.
+        odometry: (steps, 3) all ``u``; ``Q``: (3, 3) their covariance.
+        measurements, measurement_covariances, true_ids: every step's ``z``, ``R`` and
+            ids concatenated; step i owns rows ``step_offsets[i]:step_offsets[i + 1]``.
+    """
+
+    def __init__(self, config: SimulationConfig, arrays: dict):
+        self.config = config
+        self.landmarks: np.ndarray = arrays["landmarks"]
+        self.poses: np.ndarray = arrays["poses"]
+        self.odometry: np.ndarray = arrays["odometry"]
+        self.Q: np.ndarray = arrays["odometry_covariance"]
+        self.Q.flags.writeable = False
+        self.measurements: np.ndarray = arrays["measurements"]
+        self.measurement_covariances: np.ndarray = arrays["measurement_covariances"]
+        self.true_ids: np.ndarray = arrays["true_ids"]
+        self.step_offsets: np.ndarray = arrays["step_offsets"]
+        self.steps = Steps(self)
+
+    def __repr__(self) -> str:
+        return (
+            f"Simulation({self.config.trajectory!r}, steps={len(self.steps)}, "
+            f"features={len(self.landmarks)}, measurements={len(self.measurements)})"
+        )
+
+
+def simulate(trajectory: str, steps: int = 500, seed: int = 0, **overrides: Any) -> Simulation:
+    """Runs the simulator of Paz et al. 2007 (§III.B, Fig. 3) in one C++ call.
+
+    Args:
+        trajectory: ``"straight"``, ``"loop"``, ``"lawn_mowing"`` or ``"snail"``.
+        steps: number of motions (the run has ``steps + 1`` poses).
+        seed: same seed, bitwise the same arrays.
+        **overrides: any other :class:`SimulationConfig` field.
+
+    Raises:
+        ValueError: an unknown trajectory or parameter, or a bad value; the message names it.
+    """
+    known = {f.name for f in dataclasses.fields(SimulationConfig)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ValueError(f"simulate: unknown parameter(s) {', '.join(unknown)}")
+    config = SimulationConfig(trajectory=trajectory, steps=steps, seed=seed, **overrides)
+    return Simulation(config, _core.simulate(config._to_core()))
