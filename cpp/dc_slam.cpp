@@ -25,14 +25,14 @@ std::shared_ptr<const GaussianMap> compact_copy(const GaussianMap& map) {
   return copy;
 }
 
-Estimate to_estimate(const GaussianMap& map) {
+Estimate to_estimate(GaussianMap map) {
   Estimate estimate;
   estimate.robot = map.robot();
   const Eigen::Index n = map.num_features();
   estimate.landmarks.resize(n, 2);
   for (Eigen::Index k = 0; k < n; ++k) estimate.landmarks.row(k) = map.feature(k).transpose();
   estimate.landmark_ids = map.ids();
-  estimate.covariance = map.P();
+  estimate.covariance = map.release_covariance();
   return estimate;
 }
 
@@ -256,15 +256,15 @@ Estimate DCSlam::estimate() const {
     std::lock_guard<std::mutex> lock(mutex_);
     stack = stack_;
   }
-  std::shared_ptr<const GaussianMap> joined = compact_copy(local_->map());
+  auto joined = std::make_shared<GaussianMap>(*compact_copy(local_->map()));
   // Join everything on the stack, top first, as Algorithm 2 does at the end of the run.
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     const int index = -1 - static_cast<int>(it - stack.rbegin());
-    MapJoin join(materialize(*it), joined, join_options(index));
-    join.finish();
-    joined = std::make_shared<const GaussianMap>(join.take_result());
+    MapJoin join(materialize(*it), std::move(joined), join_options(index));
+    join.finish();  // releases its inputs: at most the inputs and the result are alive
+    joined = std::make_shared<GaussianMap>(join.take_result());
   }
-  return to_estimate(*joined);
+  return to_estimate(std::move(*joined));
 }
 
 Vec3 DCSlam::node_robot(const Node& node) const {

@@ -21,6 +21,17 @@ GaussianMap GaussianMap::uninitialized(Index dim) {
   return map;
 }
 
+Eigen::MatrixXd GaussianMap::release_covariance() {
+  Eigen::MatrixXd covariance;
+  if (P_.rows() == dim_) {
+    covariance.swap(P_);
+  } else {
+    covariance = P_.topLeftCorner(dim_, dim_);
+  }
+  *this = GaussianMap();
+  return covariance;
+}
+
 void GaussianMap::reserve(Index dim) {
   if (dim <= capacity()) return;
   Index capacity = std::max<Index>(32, P_.rows());

@@ -106,10 +106,12 @@ MapJoin::MapJoin(std::shared_ptr<const GaussianMap> first,
 
 std::int64_t MapJoin::remaining_work() const {
   if (phase_ == Phase::Done) return 0;
+  // The fill writes the lower triangle of the columns not yet done.
   const Index out_dim = phase_ == Phase::Fill
                             ? result_.dim()
                             : first_->dim() + second_->dim() - GaussianMap::kRobotDim;
-  return static_cast<std::int64_t>(out_dim) * (out_dim - next_out_col_);
+  const auto left = static_cast<std::int64_t>(out_dim - next_out_col_);
+  return left * (left + 1) / 2;
 }
 
 std::int64_t MapJoin::advance(std::int64_t budget) {
@@ -206,9 +208,10 @@ void MapJoin::prepare() {
     kept_ids.push_back(m2.ids()[static_cast<std::size_t>(j)]);
   }
   const Index d2k = static_cast<Index>(second_kept_rows_.size());
-  J_R_kept_.resize(d2k, 3);
-  for (Index a = 0; a < d2k; ++a) J_R_kept_.row(a) = J_R.row(second_kept_rows_[static_cast<std::size_t>(a)]);
-  J_R_kept_P_RR_ = J_R_kept_ * P1_RR;
+  Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_kept(d2k, 3);
+  for (Index a = 0; a < d2k; ++a) {
+    J_R_kept.row(a) = J_R.row(second_kept_rows_[static_cast<std::size_t>(a)]);
+  }
 
   // P H' for the constraints f_i - f'_j, on m1's feature rows and all of m2's rows.
   const auto A1 = P1.block(3, 0, 2 * n1, 3);  // cov(F1, R1)
@@ -222,7 +225,7 @@ void MapJoin::prepare() {
     PHt_first.middleCols<2>(2 * k).noalias() -= A1 * J_j.transpose();
     // cov(m2 rows, f'_j) = J_R P1_RR J_j' + J_2 P2[:, f_j] Rot'.
     Eigen::MatrixXd second_col = P2.middleCols(oj, 2) * rotation_.transpose();
-    rotate_second_rows(second_col);
+    rotate_second_rows(second_col, 0);
     PHt_second.middleCols<2>(2 * k).noalias() = J_R * P1.block(0, oi, 3, 2);
     PHt_second.middleCols<2>(2 * k).noalias() -= J_R * (P1_RR * J_j.transpose());
     PHt_second.middleCols<2>(2 * k) -= second_col;
@@ -242,33 +245,53 @@ void MapJoin::prepare() {
         "(two matched features are perfectly correlated)");
   }
   // W = P H' L^-T, so that P_out = P - W W' and x_out = x - W L^-1 h.
-  W_first_ = PHt_first;
+  Eigen::MatrixXd W_first = PHt_first;
   Eigen::MatrixXd W_second = PHt_second;
   Eigen::VectorXd v = h;
   if (r > 0) {
     const auto L = llt.matrixL();
-    L.transpose().solveInPlace<Eigen::OnTheRight>(W_first_);
+    L.transpose().solveInPlace<Eigen::OnTheRight>(W_first);
     L.transpose().solveInPlace<Eigen::OnTheRight>(W_second);
     L.solveInPlace(v);
   }
-  W_second_kept_.resize(d2k, 2 * r);
+  Eigen::MatrixXd W_second_kept(d2k, 2 * r);
   for (Index a = 0; a < d2k; ++a) {
-    W_second_kept_.row(a) = W_second.row(second_kept_rows_[static_cast<std::size_t>(a)]);
+    W_second_kept.row(a) = W_second.row(second_kept_rows_[static_cast<std::size_t>(a)]);
   }
 
   // The result: [R2'; F1; F2' unmatched], means corrected by the constraints.
   const Index n2k = (d2k - 3) / 2;
-  result_ = GaussianMap::uninitialized(3 + 2 * n1 + 2 * n2k);
+  const Index out_dim = 3 + 2 * n1 + 2 * n2k;
+  result_ = GaussianMap::uninitialized(out_dim);
   auto x = result_.x();
-  Vec3 robot = frame.moved_second_robot() - W_second_kept_.topRows<3>() * v;
+  Vec3 robot = frame.moved_second_robot() - W_second_kept.topRows<3>() * v;
   robot.z() = wrap_angle(robot.z());
   x.head<3>() = robot;
-  x.segment(3, 2 * n1) = m1.x().tail(2 * n1) - W_first_ * v;
+  x.segment(3, 2 * n1) = m1.x().tail(2 * n1) - W_first * v;
   for (Index a = 3; a < d2k; a += 2) {
     const Index j = (second_kept_rows_[static_cast<std::size_t>(a)] - 3) / 2;
     x.segment<2>(3 + 2 * n1 + (a - 3)) =
-        frame.moved_second_feature(j) - W_second_kept_.middleRows<2>(a) * v;
+        frame.moved_second_feature(j) - W_second_kept.middleRows<2>(a) * v;
   }
+
+  // Low-rank factors of the fill (see the header), rows in output order.
+  const Index k = 2 * r;
+  left_.resize(out_dim, 6 + k);
+  const auto put_second_rows = [&](Index out_row, Index local_row, Index rows) {
+    left_.block(out_row, 0, rows, 3) = J_R_kept.middleRows(local_row, rows) * P1_RR;
+    left_.block(out_row, 3, rows, k) = W_second_kept.middleRows(local_row, rows);
+    left_.block(out_row, 3 + k, rows, 3) = J_R_kept.middleRows(local_row, rows);
+  };
+  put_second_rows(0, 0, 3);
+  put_second_rows(3 + 2 * n1, 3, d2k - 3);
+  left_.block(3, 0, 2 * n1, 3) = A1;
+  left_.block(3, 3, 2 * n1, k) = W_first;
+  left_.block(3, 3 + k, 2 * n1, 3).setZero();
+  right_second_.resize(d2k, 3 + k);
+  right_second_ << J_R_kept, -W_second_kept;
+  right_first_.resize(2 * n1, 3 + k);
+  right_first_ << -W_first, A1;
+
   auto& ids = result_.ids();
   std::copy(m1.ids().begin(), m1.ids().end(), ids.begin());
   std::copy(kept_ids.begin(), kept_ids.end(), ids.begin() + static_cast<std::ptrdiff_t>(n1));
@@ -277,9 +300,9 @@ void MapJoin::prepare() {
 }
 
 // Applies J_2 (block-diagonal rotations: Rot on the robot's (x, y), identity on its heading,
-// Rot on each feature) from the left to a block whose rows are m2's elements. Rows are
-// either all of m2's or its kept ones; both start with the robot and then pair up.
-void MapJoin::rotate_second_rows(Eigen::Ref<Eigen::MatrixXd> block) const {
+// Rot on each feature) from the left to rows [local_begin, ...) of m2's elements (all of them
+// or the kept ones: both start with the robot and then pair up).
+void MapJoin::rotate_second_rows(Eigen::Ref<Eigen::MatrixXd> block, Index local_begin) const {
   const double c = rotation_(0, 0), s = rotation_(1, 0);
   const auto rotate_pair = [&](Index a) {
     for (Index col = 0; col < block.cols(); ++col) {
@@ -288,112 +311,99 @@ void MapJoin::rotate_second_rows(Eigen::Ref<Eigen::MatrixXd> block) const {
       block(a + 1, col) = s * u + c * w;
     }
   };
-  rotate_pair(0);
-  for (Index a = 3; a + 1 < block.rows(); a += 2) rotate_pair(a);
+  Index first_pair = 0;
+  if (local_begin == 0) {
+    rotate_pair(0);
+    first_pair = 3;
+  }
+  for (Index a = first_pair; a + 1 < block.rows(); a += 2) rotate_pair(a);
 }
 
-// Applies J_2' from the right to columns [local_begin, local_begin + cols) of m2's kept
-// elements (a block of even width starting at a pair, or the robot's three columns).
 void MapJoin::rotate_second_columns(Eigen::Ref<Eigen::MatrixXd> block,
                                     Index local_begin) const {
   const double c = rotation_(0, 0), s = rotation_(1, 0);
-  // The robot's block is its three columns: (x, y) rotate, the heading stays as it is.
-  const Index pairs_end = local_begin == 0 ? 2 : block.cols();
-  for (Index a = 0; a + 1 < pairs_end; a += 2) {
+  const auto rotate_pair = [&](Index a) {
     for (Index row = 0; row < block.rows(); ++row) {
       const double u = block(row, a), w = block(row, a + 1);
       block(row, a) = c * u - s * w;
       block(row, a + 1) = s * u + c * w;
     }
+  };
+  Index first_pair = 0;
+  if (local_begin == 0) {
+    rotate_pair(0);
+    first_pair = 3;
   }
+  for (Index a = first_pair; a + 1 < block.cols(); a += 2) rotate_pair(a);
 }
 
-std::int64_t MapJoin::fill_next_block() {
-  const Index n1 = first_->num_features();
-  const Index first_begin = 3, first_end = 3 + 2 * n1;
-  const Index out_dim = result_.dim();
-  const Index col = next_out_col_;
-  Index width;
-  if (col < first_begin) {  // the robot's columns
-    width = 3;
-    fill_second_columns(0, width, col);
-  } else if (col < first_end) {
-    width = std::min(options_.block_columns, first_end - col);
-    fill_first_columns(col - first_begin, width, col);
-  } else {
-    width = std::min(options_.block_columns, out_dim - col);
-    fill_second_columns(3 + (col - first_end), width, col);
-  }
-  next_out_col_ += width;
-  return static_cast<std::int64_t>(out_dim) * width;
-}
-
-// Output columns of m2's kept elements [local_begin, local_begin + width).
-void MapJoin::fill_second_columns(Index local_begin, Index width, Index out_col) {
-  const GaussianMap& m1 = *first_;
-  const GaussianMap& m2 = *second_;
-  const Index n1 = m1.num_features();
-  const Index d2k = static_cast<Index>(second_kept_rows_.size());
-  const auto P2 = m2.P();
-  auto out = result_.P();
-
-  // cov(m2 kept, these columns) = J_R P1_RR J_R' + J_2 P2 J_2' - W2 W2'.
-  scratch_second_.resize(d2k, width);
+void MapJoin::write_moved_second_block(Index row_begin, Index rows, Index col_begin,
+                                       Index width, Index out_row, Index out_col) {
+  const auto P2 = second_->P();
+  scratch_.resize(rows, width);
   for (Index b = 0; b < width; ++b) {
-    const Index src_col = second_kept_rows_[static_cast<std::size_t>(local_begin + b)];
-    for (Index a = 0; a < d2k; ++a) {
-      scratch_second_(a, b) = P2(second_kept_rows_[static_cast<std::size_t>(a)], src_col);
+    const Index src_col = second_kept_rows_[static_cast<std::size_t>(col_begin + b)];
+    for (Index a = 0; a < rows; ++a) {
+      scratch_(a, b) = P2(second_kept_rows_[static_cast<std::size_t>(row_begin + a)], src_col);
     }
   }
-  rotate_second_rows(scratch_second_);
-  rotate_second_columns(scratch_second_, local_begin);
-  const auto J_cols = J_R_kept_.middleRows(local_begin, width);
-  const auto W_cols = W_second_kept_.middleRows(local_begin, width);
-  scratch_second_.noalias() += J_R_kept_P_RR_ * J_cols.transpose();
-  scratch_second_.noalias() -= W_second_kept_ * W_cols.transpose();
-
-  // cov(F1, these columns) = cov(F1, R1) J_R' - W1 W2'.
-  const auto A1 = m1.P().block(3, 0, 2 * n1, 3);
-  scratch_first_.resize(2 * n1, width);
-  scratch_first_.noalias() = A1 * J_cols.transpose();
-  scratch_first_.noalias() -= W_first_ * W_cols.transpose();
-
-  out.block(0, out_col, 3, width) = scratch_second_.topRows(3);
-  out.block(3, out_col, 2 * n1, width) = scratch_first_;
-  out.block(3 + 2 * n1, out_col, d2k - 3, width) = scratch_second_.bottomRows(d2k - 3);
+  rotate_second_rows(scratch_, row_begin);
+  rotate_second_columns(scratch_, col_begin);
+  result_.P().block(out_row, out_col, rows, width) = scratch_;
 }
 
-// Output columns of m1's features, feature-coordinate columns [begin, begin + width).
-void MapJoin::fill_first_columns(Index begin, Index width, Index out_col) {
-  const GaussianMap& m1 = *first_;
-  const Index n1 = m1.num_features();
-  const Index d2k = static_cast<Index>(second_kept_rows_.size());
-  const auto P1 = m1.P();
+// One block of columns [col, col + width): the lower part (rows >= col) is computed as
+// base + L N', then mirrored into the rows above the diagonal of later columns.
+std::int64_t MapJoin::fill_next_block() {
+  const Index n1 = first_->num_features();
+  const Index first_end = 3 + 2 * n1;
+  const Index out_dim = result_.dim();
+  const Index k = static_cast<Index>(right_first_.cols()) - 3;
+  const Index col = next_out_col_;
   auto out = result_.P();
-  const auto W_cols = W_first_.middleRows(begin, width);
-
-  scratch_first_.resize(2 * n1, width);
-  scratch_first_ = P1.block(3, 3 + begin, 2 * n1, width);
-  scratch_first_.noalias() -= W_first_ * W_cols.transpose();
-
-  scratch_second_.resize(d2k, width);
-  scratch_second_.noalias() = J_R_kept_ * P1.block(0, 3 + begin, 3, width);
-  scratch_second_.noalias() -= W_second_kept_ * W_cols.transpose();
-
-  out.block(0, out_col, 3, width) = scratch_second_.topRows(3);
-  out.block(3, out_col, 2 * n1, width) = scratch_first_;
-  out.block(3 + 2 * n1, out_col, d2k - 3, width) = scratch_second_.bottomRows(d2k - 3);
+  Index width;
+  if (col < 3) {  // the robot's columns: base J_2 P2 J_2' on m2's rows, 0 on F1's
+    width = 3;
+    const Index kept_features = out_dim - first_end;
+    write_moved_second_block(0, 3, 0, 3, 0, 0);
+    out.block(3, 0, 2 * n1, 3).setZero();
+    write_moved_second_block(3, kept_features, 0, 3, first_end, 0);
+    out.block(0, 0, out_dim, 3).noalias() +=
+        left_.leftCols(3 + k) * right_second_.topRows(3).transpose();
+  } else if (col < first_end) {  // m1's features: base P1 on F1's rows, 0 on m2's
+    width = std::min(options_.block_columns, first_end - col);
+    const Index begin = col - 3;  // feature coordinate within F1
+    out.block(col, col, first_end - col, width) = first_->P().block(col, col, first_end - col, width);
+    out.block(first_end, col, out_dim - first_end, width).setZero();
+    out.block(col, col, out_dim - col, width).noalias() +=
+        left_.rightCols(3 + k).middleRows(col, out_dim - col) *
+        right_first_.middleRows(begin, width).transpose();
+  } else {  // m2's unmatched features: base J_2 P2 J_2'
+    width = std::min(options_.block_columns, out_dim - col);
+    const Index local = 3 + (col - first_end);
+    write_moved_second_block(local, out_dim - col, local, width, col, col);
+    out.block(col, col, out_dim - col, width).noalias() +=
+        left_.leftCols(3 + k).middleRows(col, out_dim - col) *
+        right_second_.middleRows(local, width).transpose();
+  }
+  const Index below = out_dim - col - width;
+  if (col >= 3 && below > 0) {
+    out.block(col, col + width, width, below) = out.block(col + width, col, below, width).transpose();
+  } else if (col < 3) {
+    out.block(0, 3, 3, out_dim - 3) = out.block(3, 0, out_dim - 3, 3).transpose();
+  }
+  next_out_col_ += width;
+  return static_cast<std::int64_t>(out_dim - col) * width;
 }
 
 void MapJoin::release_inputs() {
   first_.reset();
   second_.reset();
-  W_first_ = Eigen::MatrixXd();
-  W_second_kept_ = Eigen::MatrixXd();
-  scratch_first_ = Eigen::MatrixXd();
-  scratch_second_ = Eigen::MatrixXd();
+  left_ = Eigen::MatrixXd();
+  right_first_ = Eigen::MatrixXd();
+  right_second_ = Eigen::MatrixXd();
+  scratch_ = Eigen::MatrixXd();
 }
-
 GaussianMap join_maps(const GaussianMap& first, const GaussianMap& second,
                       const JoinOptions& options, JoinReport* report) {
   // Aliasing shared_ptrs: the join only reads the maps, which outlive this call.

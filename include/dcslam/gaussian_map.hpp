@@ -50,6 +50,10 @@ class GaussianMap {
   // Removes features by index (any order, no duplicates) in one O(n^2) compaction pass.
   void remove_features(std::vector<Index> indices);
 
+  // Hands the covariance over (moved, without a copy, when the storage fits exactly) and
+  // leaves the map empty: for the last use of a map, such as turning it into an Estimate.
+  Eigen::MatrixXd release_covariance();
+
   // Sets the logical size, keeping the leading block; new entries are zero.
   void resize(Index dim);
   void reserve(Index dim);

@@ -115,10 +115,13 @@ class MapJoin {
   void associate();
   void prepare();
   std::int64_t fill_next_block();
-  void fill_second_columns(Eigen::Index local_begin, Eigen::Index width, Eigen::Index out_col);
-  void fill_first_columns(Eigen::Index feature_col_begin, Eigen::Index width,
-                          Eigen::Index out_col);
-  void rotate_second_rows(Eigen::Ref<Eigen::MatrixXd> block) const;
+  // Writes J_2 P2 J_2' for m2's kept elements, local rows [row_begin, row_begin + rows) x
+  // local columns [col_begin, col_begin + width), into the output at (out_row, out_col).
+  void write_moved_second_block(Eigen::Index row_begin, Eigen::Index rows, Eigen::Index col_begin,
+                                Eigen::Index width, Eigen::Index out_row, Eigen::Index out_col);
+  // J_2 from the left (rows) or J_2' from the right (columns) on a block of m2's kept
+  // elements starting at local index `local_begin` (0: the robot; odd: a feature pair).
+  void rotate_second_rows(Eigen::Ref<Eigen::MatrixXd> block, Eigen::Index local_begin) const;
   void rotate_second_columns(Eigen::Ref<Eigen::MatrixXd> block, Eigen::Index local_begin) const;
   void release_inputs();
 
@@ -129,17 +132,19 @@ class MapJoin {
   Pairs pairs_;
   std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids_;
 
-  // Prepared for the fill: kept rows of m2 (robot, then unmatched features), the Jacobian
-  // rows of ⊕ for them, the W factors of the constraint update, and the output.
-  std::vector<Eigen::Index> second_kept_rows_;
-  Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_kept_;
-  Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_kept_P_RR_;  // J_R_kept * P1[R1, R1]
-  Eigen::MatrixXd W_first_;        // rows of W for m1's features (2 n1 x 2r)
-  Eigen::MatrixXd W_second_kept_;  // rows of W for m2's kept elements (d2k x 2r)
+  // Prepared for the fill. Every block of the result is a "base" (a block of P1, or of
+  // J_2 P2 J_2') plus a low-rank term L N' with inner dimension 3 + 2r:
+  //   columns of m2's kept elements: L = [J_R P1_RR or cov(F1, R1) | W], N = [J_R | -W];
+  //   columns of m1's features:      L = [W | J_R or 0],               N = [-W | cov(F1, R1)].
+  // left_ holds [JP | W | J] in output row order; right_* hold N for each column kind.
+  std::vector<Eigen::Index> second_kept_rows_;  // m2's robot rows, then unmatched features
+  Eigen::MatrixXd left_;
+  Eigen::MatrixXd right_second_;
+  Eigen::MatrixXd right_first_;
   Mat2 rotation_;
   GaussianMap result_;
   Eigen::Index next_out_col_ = 0;
-  Eigen::MatrixXd scratch_second_, scratch_first_;
+  Eigen::MatrixXd scratch_;
 };
 
 // Joins two maps at once (no amortization).
