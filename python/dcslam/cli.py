@@ -195,14 +195,14 @@ def _summary_table(name: str, results, alignments) -> Table:
     row("measurements", [f"{c['measurements']}" for c in counts])
     row("paired / new / rejected", [f"{c['paired']} / {c['new']} / {c['rejected']}" for c in counts])
     row("features in the final map", [f"{r.map_size}" for r in results])
-    row("time total [s]", [f"{r.total_seconds:.3f}" for r in results])
-    row("time per step, mean [ms]", [f"{1e3 * r.total_seconds / max(r.steps, 1):.2f}" for r in results])
-    row("time per step, worst [ms]", [f"{1e3 * r.worst_step_seconds:.2f}" for r in results])
-    row("final estimate [ms]", [f"{1e3 * r.estimate_seconds:.2f}" for r in results])
+    row("time total (s)", [f"{r.total_seconds:.3f}" for r in results])
+    row("time per step, mean (ms)", [f"{1e3 * r.total_seconds / max(r.steps, 1):.3f}" for r in results])
+    row("time per step, worst (ms)", [f"{1e3 * r.worst_step_seconds:.2f}" for r in results])
+    row("final estimate (ms)", [f"{1e3 * r.estimate_seconds:.2f}" for r in results])
     row("D&C joins (pairings)", [f"{len(r.joins)} ({c['join_pairings']})" if r.filter_name == "dc" else "-"
                                  for r, c in zip(results, counts)])
     if alignments:
-        row("GPS RMS after rigid alignment [m]",
+        row("GPS RMS after rigid alignment (m)",
             [f"{alignments[r.filter_name].rms:.2f}" if r.filter_name in alignments else "-" for r in results])
     return table
 
@@ -227,6 +227,8 @@ def run_victoria_park(
     """
     from .datasets import victoria_park
 
+    if "known" in (getattr(association, "value", None), getattr(join_association, "value", None)):
+        _fail("Victoria Park has no landmark ids: use --association nn|jcbb and --join-association rjc|jcbb")
     try:
         dataset = victoria_park(data_dir)
         cfg = _config_with(dataset.slam_config(), association, join_association, local_map_features)

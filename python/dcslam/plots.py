@@ -90,8 +90,7 @@ def plot_map(
     figure, axes = plt.subplots(figsize=(10, 8), dpi=120)
     if gps is not None and len(gps):
         gps = np.asarray(gps, dtype=float)
-        axes.plot(gps[:, 0], gps[:, 1], ".", color="tab:green", markersize=2, alpha=0.6, label="GPS (aligned)"
-                  if alignment is not None else "GPS")
+        axes.plot(gps[:, 0], gps[:, 1], ".", color="tab:green", markersize=2, alpha=0.6, label="GPS")
     if len(trajectory):
         axes.plot(trajectory[:, 0], trajectory[:, 1], "-", color="tab:red", linewidth=0.8, label="robot trajectory")
     if n:
@@ -104,7 +103,7 @@ def plot_map(
     axes.plot(robot[0, 0], robot[0, 1], marker=(3, 0, np.degrees(robot[0, 2]) - 90), color="tab:red",
               markersize=9, linestyle="none", label="final robot pose")
     axes.set_aspect("equal", adjustable="datalim")
-    axes.set_xlabel("x [m]" + (" (GPS frame)" if alignment is not None else ""))
+    axes.set_xlabel("x [m]" + (" (GPS frame; map and trajectory rigidly aligned to GPS)" if alignment is not None else ""))
     axes.set_ylabel("y [m]")
     axes.grid(True, linewidth=0.3)
     label = FILTER_LABELS.get(result.filter_name, result.filter_name)
@@ -139,19 +138,19 @@ def plot_timing(results: Sequence[PipelineResult], path: PathLike, title: Option
         label = FILTER_LABELS.get(result.filter_name, result.filter_name)
         color = FILTER_COLORS.get(result.filter_name)
         steps = np.arange(result.steps)
-        seconds = result.step_seconds
+        milliseconds = 1e3 * result.step_seconds
         if with_joins:
-            axes[0].plot(steps, seconds, color=color, linewidth=0.6, label=f"{label} step")
+            axes[0].plot(steps, milliseconds, color=color, linewidth=0.6, label=f"{label} step")
             joins = result.joins
             if joins:
                 created = np.array([join["step_created"] for join in joins])
-                cost = np.array([join["seconds"] for join in joins])
+                cost = 1e3 * np.array([join["seconds"] for join in joins])
                 axes[0].vlines(created, 0, cost, color="black", linewidth=0.8)
                 axes[0].plot(created, cost, "v", color="black", markersize=4, label="D&C join (all at once)")
         amortized = " (amortized)" if result.joins and result.config.amortize else ""
-        per_step_axes.plot(steps, seconds, color=color, linewidth=0.6,
+        per_step_axes.plot(steps, milliseconds, color=color, linewidth=0.6,
                            label=f"{label}{amortized}: worst {result.worst_step_seconds * 1e3:.1f} ms")
-        cumulative = np.cumsum(seconds)
+        cumulative = np.cumsum(result.step_seconds)
         if len(cumulative):
             cumulative[-1] += result.estimate_seconds
         cumulative_axes.plot(steps, cumulative, color=color, linewidth=1.2,
@@ -159,9 +158,9 @@ def plot_timing(results: Sequence[PipelineResult], path: PathLike, title: Option
 
     if with_joins:
         axes[0].set_title("Time per step, D&C joins at full cost")
-        axes[0].set_ylabel("seconds")
+        axes[0].set_ylabel("ms")
     per_step_axes.set_title("Time per step")
-    per_step_axes.set_ylabel("seconds")
+    per_step_axes.set_ylabel("ms")
     cumulative_axes.set_title("Cumulative time")
     cumulative_axes.set_ylabel("seconds")
     cumulative_axes.set_xlabel("step")
