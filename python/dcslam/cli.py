@@ -114,9 +114,9 @@ def _fail(message: str) -> None:
 
 
 def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Path, max_steps: Optional[int],
-                 plots: bool, progress: Optional[bool], gps=None) -> None:
+                 plots: bool, progress: Optional[bool], gps=None, hint: str = "") -> None:
     """Builds every pipeline first (bad options fail before any work), runs them, writes and
-    summarises the results."""
+    summarises the results. ``hint`` is added to the message of a refused configuration."""
     from .pipeline import SlamPipeline, gps_alignment
 
     show_progress = console.is_terminal if progress is None else progress
@@ -124,7 +124,7 @@ def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Pat
         pipelines = [SlamPipeline(steps, cfg, filter=filter_name, max_steps=max_steps, progress=show_progress,
                                   description=f"{name}: {filter_name}") for filter_name in _filters(filter_choice)]
     except ValueError as error:
-        _fail(f"cannot build the filter for {name}: {error}")
+        _fail(f"cannot build the filter for {name}: {error}{hint}")
     results = []
     for pipeline in pipelines:
         results.append(pipeline.run())
@@ -234,7 +234,9 @@ def run_victoria_park(
         cfg = _config_with(dataset.slam_config(), association, join_association, local_map_features)
     except ValueError as error:
         _fail(str(error))
-    _run_dataset("Victoria Park", dataset.steps, cfg, filter, output, max_steps, plots, progress, gps=dataset.gps)
+    _run_dataset("Victoria Park", dataset.steps, cfg, filter, output, max_steps, plots, progress, gps=dataset.gps,
+                 hint=f". Victoria Park has no landmark ids: it needs association 'nn' or 'jcbb' inside local "
+                      f"maps (this run asked for {cfg.association!r}) and 'rjc' or 'jcbb' at joins.")
 
 
 @run_app.command("isam")
