@@ -10,6 +10,8 @@ from ._core import InvalidArgument, ParseError
 from .config import SlamConfig
 from . import datasets
 from .slam import DCSlam, DCSlamStats, EkfSlam, Estimate, SlamStats
+from . import io, pipeline
+from .pipeline import PipelineResult, SlamPipeline, gps_alignment
 
 __all__ = [
     "__version__",
@@ -23,4 +25,9 @@ __all__ = [
     "EkfSlam",
     "Estimate",
     "SlamStats",
+    "io",
+    "pipeline",
+    "PipelineResult",
+    "SlamPipeline",
+    "gps_alignment",
 ]

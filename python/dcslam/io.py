@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import os
-from typing import Any, Dict, Tuple, Union
+from typing import Any, Dict, Optional, Tuple, Union
 
 import numpy as np
 
@@ -124,7 +124,7 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def write_stats_json(path: PathLike, result, extra: Dict[str, Any] = None) -> None:
+def write_stats_json(path: PathLike, result, extra: Optional[Dict[str, Any]] = None) -> None:
     """Writes a :class:`~dcslam.pipeline.PipelineResult`'s numbers as JSON.
 
     Keys: ``summary`` (totals, map size, joins, association counts), ``config``,

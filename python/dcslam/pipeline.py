@@ -144,7 +144,7 @@ class SlamPipeline:
             raise ValueError(f"SlamPipeline: filter must be one of {', '.join(FILTERS)}, got {filter!r}")
         if max_steps is not None and max_steps < 0:
             raise ValueError(f"SlamPipeline: max_steps must be >= 0, got {max_steps}")
-        self.steps = dataset_steps
+        self.dataset_steps = dataset_steps
         self.step_count = len(dataset_steps) if max_steps is None else min(max_steps, len(dataset_steps))
         self.config = cfg
         self.filter_name = filter
@@ -153,9 +153,17 @@ class SlamPipeline:
         self.description = description or f"{filter} SLAM"
         # Built here so that refused options fail before a long run starts.
         self.slam: SlamFilter = FILTERS[filter](cfg)
+        self._ran = False
 
     def run(self) -> PipelineResult:
-        """Runs every step, then takes the final estimate. One filter, one run."""
+        """Runs every step, then takes the final estimate.
+
+        Raises:
+            RuntimeError: when called a second time (the filter already holds the run).
+        """
+        if self._ran:
+            raise RuntimeError("SlamPipeline.run: this pipeline already ran; build a new one")
+        self._ran = True
         slam = self.slam
         use_ids = self.config.association == "known"
         timestamps = np.empty(self.step_count)
@@ -163,7 +171,7 @@ class SlamPipeline:
         started = time.perf_counter()
         with _progress_bar(self.progress, self.description, self.step_count) as advance:
             for k in range(self.step_count):
-                step = self.steps[k]
+                step = self.dataset_steps[k]
                 slam.predict(step.u, step.Q)
                 ids = getattr(step, self.ids_field) if use_ids else None
                 slam.update(step.z, step.R, ids)
@@ -291,7 +299,7 @@ def rigid_fit_2d(source, target):
     source_mean, target_mean = source.mean(axis=0), target.mean(axis=0)
     cross = (target - target_mean).T @ (source - source_mean)
     u, _, vt = np.linalg.svd(cross)
-    flip = np.diag([1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
+    flip = np.diag([1.0, np.sign(np.linalg.det(u @ vt))])  # -1 would be a reflection: undo it
     rotation = u @ flip @ vt
     return rotation, target_mean - rotation @ source_mean
 

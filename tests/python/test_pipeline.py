@@ -92,8 +92,11 @@ def test_dc_joins_and_agrees_with_ekf(results):
 
 
 def test_pipeline_options(corridor, config):
-    short = SlamPipeline(corridor, config, filter="ekf", max_steps=7).run()
+    pipeline = SlamPipeline(corridor, config, filter="ekf", max_steps=7)
+    short = pipeline.run()
     assert short.steps == 7 and short.stats.step_seconds.shape == (7,)
+    with pytest.raises(RuntimeError):
+        pipeline.run()
     untimed = [SimpleNamespace(u=s.u, Q=s.Q, z=s.z, R=s.R, landmark_ids=s.landmark_ids) for s in corridor[:4]]
     np.testing.assert_array_equal(SlamPipeline(untimed, config, filter="ekf").run().timestamps, np.arange(4))
     with pytest.raises(ValueError, match="filter"):
