@@ -8,6 +8,7 @@ from typing import Dict, List, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from ._version import __version__
@@ -109,7 +110,7 @@ def _filters(choice: FilterChoice) -> List[str]:
 
 
 def _fail(message: str) -> None:
-    console.print(f"[bold red]error:[/] {message}")
+    console.print(f"[bold red]error:[/] {escape(message)}")
     raise typer.Exit(code=2)
 
 
@@ -125,9 +126,10 @@ def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Pat
                                   description=f"{name}: {filter_name}") for filter_name in _filters(filter_choice)]
     except ValueError as error:
         _fail(f"cannot build the filter for {name}: {error}{hint}")
-    results = []
-    for pipeline in pipelines:
-        results.append(pipeline.run())
+    try:
+        results = [pipeline.run() for pipeline in pipelines]
+    except ValueError as error:  # a step the filter refused; the message names it
+        _fail(f"{name}: {error}")
 
     alignments: Dict[str, object] = {}
     if gps is not None:
