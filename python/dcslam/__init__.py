@@ -12,6 +12,8 @@ from . import datasets
 from .consistency import chi2_threshold, consistency_index, nees
 from .simulation import Simulation, SimulationConfig, simulate
 from .slam import DCSlam, DCSlamStats, EkfSlam, Estimate, SlamStats
+from . import io, pipeline
+from .pipeline import PipelineResult, SlamPipeline, gps_alignment
 
 __all__ = [
     "__version__",
@@ -31,4 +33,9 @@ __all__ = [
     "nees",
     "chi2_threshold",
     "consistency_index",
+    "io",
+    "pipeline",
+    "PipelineResult",
+    "SlamPipeline",
+    "gps_alignment",
 ]

@@ -1,7 +1,12 @@
+import json
 import subprocess
 import sys
+from pathlib import Path
+
+import numpy as np
 
 import dcslam
+from dcslam import io
 
 
 def run(*args):
@@ -19,3 +24,37 @@ def test_selfcheck_passes():
     out = run("selfcheck", "--samples", "20")
     assert out.returncode == 0, out.stdout + out.stderr
     assert "compose" in out.stdout and "FAIL" not in out.stdout
+
+
+ISAM_FILE = Path(__file__).parent.parent / "data" / "isam_victoria_park.txt.gz"
+
+
+def test_run_isam_writes_outputs(tmp_path):
+    out = run("run", "isam", str(ISAM_FILE), "--max-steps", "300", "--filter", "both", "--output", str(tmp_path),
+              "--local-map-features", "10", "--no-progress")
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "features in the final map" in out.stdout and str(tmp_path) in out.stdout
+    for name in ("ekf", "dc"):
+        t, poses = io.read_tum(tmp_path / f"trajectory_{name}.tum")
+        np.testing.assert_array_equal(t, np.arange(300))
+        np.testing.assert_allclose(io.read_kitti(tmp_path / f"trajectory_{name}.kitti")[:, :2], poses[:, :2], atol=1e-6)
+        estimate = io.load_map(tmp_path / f"map_{name}.npz")
+        n = len(estimate.landmarks)
+        assert n > 0 and estimate.covariance.shape == (3 + 2 * n, 3 + 2 * n)
+        stats = json.loads((tmp_path / f"stats_{name}.json").read_text())
+        assert stats["summary"]["steps"] == 300 and stats["summary"]["map_size"] == n
+        assert (tmp_path / f"map_{name}.png").stat().st_size > 0
+    assert json.loads((tmp_path / "stats_dc.json").read_text())["summary"]["joins"] > 0
+    assert (tmp_path / "timing.png").stat().st_size > 0
+
+
+def test_run_isam_refuses_a_bad_file(tmp_path):
+    bad = tmp_path / "bad.txt"
+    bad.write_text("ODOMETRY 0 1 oops\n")
+    out = run("run", "isam", str(bad), "--output", str(tmp_path / "out"), "--no-progress")
+    assert out.returncode == 2 and "error" in out.stdout and "bad.txt" in out.stdout
+
+
+def test_run_victoria_park_refuses_known_association(tmp_path):
+    out = run("run", "victoria-park", "--association", "known", "--output", str(tmp_path), "--no-progress")
+    assert out.returncode == 2 and "no landmark ids" in out.stdout

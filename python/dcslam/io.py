@@ -1,0 +1,154 @@
+"""Writers (and readers, for checks) of a SLAM run's outputs.
+
+- Trajectories in the TUM RGB-D format (``t x y z qx qy qz qw``) and the KITTI odometry
+  format (12 numbers a line: the 3x4 matrix ``[R | t]`` row-major), so standard tools such as
+  ``evo`` read them. A planar pose (x, y, phi) is embedded in SE(3) as a rotation ``phi``
+  about z at height 0.
+- The map with its full covariance as ``.npz`` (``robot``, ``landmarks``, ``landmark_ids``,
+  ``covariance``).
+- Run statistics as JSON.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any, Dict, Optional, Tuple, Union
+
+import numpy as np
+
+from .slam import Estimate
+
+__all__ = [
+    "write_tum",
+    "read_tum",
+    "write_kitti",
+    "read_kitti",
+    "save_map",
+    "load_map",
+    "write_stats_json",
+    "pose_to_se3",
+    "yaw_quaternion",
+]
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+def _poses(poses) -> np.ndarray:
+    poses = np.asarray(poses, dtype=float)
+    if poses.ndim != 2 or poses.shape[1] != 3:
+        raise ValueError(f"poses must be (k, 3) x, y, phi; got shape {poses.shape}")
+    return poses
+
+
+def yaw_quaternion(phi) -> np.ndarray:
+    """(k, 4) unit quaternions (qx, qy, qz, qw) of rotations by ``phi`` about z."""
+    half = np.asarray(phi, dtype=float) / 2.0
+    zeros = np.zeros_like(half)
+    return np.column_stack([zeros, zeros, np.sin(half), np.cos(half)])
+
+
+def pose_to_se3(poses) -> np.ndarray:
+    """(k, 4, 4) homogeneous transforms of planar poses (x, y, phi): rotation about z, z = 0."""
+    poses = _poses(poses)
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    transforms = np.zeros((len(poses), 4, 4))
+    transforms[:, 0, 0], transforms[:, 0, 1], transforms[:, 0, 3] = c, -s, poses[:, 0]
+    transforms[:, 1, 0], transforms[:, 1, 1], transforms[:, 1, 3] = s, c, poses[:, 1]
+    transforms[:, 2, 2] = transforms[:, 3, 3] = 1.0
+    return transforms
+
+
+def write_tum(path: PathLike, timestamps, poses) -> None:
+    """Writes ``t x y z qx qy qz qw`` per pose (z = 0, yaw quaternion)."""
+    poses = _poses(poses)
+    timestamps = np.asarray(timestamps, dtype=float).reshape(-1)
+    if len(timestamps) != len(poses):
+        raise ValueError(f"write_tum: {len(timestamps)} timestamps for {len(poses)} poses")
+    rows = np.column_stack([timestamps, poses[:, :2], np.zeros(len(poses)), yaw_quaternion(poses[:, 2])])
+    np.savetxt(path, rows, fmt="%.9f", header="t x y z qx qy qz qw")
+
+
+def read_tum(path: PathLike) -> Tuple[np.ndarray, np.ndarray]:
+    """Reads a TUM trajectory of planar poses; returns (timestamps (k,), poses (k, 3)).
+
+    The heading is the quaternion's rotation about z (tilt, if any, is ignored).
+    """
+    rows = np.loadtxt(path, ndmin=2)
+    if rows.shape[1] != 8:
+        raise ValueError(f"{os.fspath(path)}: TUM lines have 8 numbers, found {rows.shape[1]}")
+    qx, qy, qz, qw = rows[:, 4:].T
+    yaw = np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy**2 + qz**2))
+    return rows[:, 0], np.column_stack([rows[:, 1], rows[:, 2], yaw])
+
+
+def write_kitti(path: PathLike, poses) -> None:
+    """Writes the 3x4 matrix ``[R | t]`` of each pose row-major, 12 numbers a line."""
+    transforms = pose_to_se3(poses)
+    np.savetxt(path, transforms[:, :3, :].reshape(len(transforms), 12), fmt="%.9e")
+
+
+def read_kitti(path: PathLike) -> np.ndarray:
+    """Reads a KITTI trajectory of planar poses; returns (k, 3) x, y, phi."""
+    rows = np.loadtxt(path, ndmin=2)
+    if rows.shape[1] != 12:
+        raise ValueError(f"{os.fspath(path)}: KITTI lines have 12 numbers, found {rows.shape[1]}")
+    matrices = rows.reshape(-1, 3, 4)
+    return np.column_stack([matrices[:, 0, 3], matrices[:, 1, 3], np.arctan2(matrices[:, 1, 0], matrices[:, 0, 0])])
+
+
+def save_map(path: PathLike, estimate: Estimate) -> None:
+    """Saves the map as ``.npz``: robot (3,), landmarks (n, 2), landmark_ids (n,),
+    covariance (3 + 2n, 3 + 2n)."""
+    np.savez_compressed(path, robot=estimate.robot, landmarks=estimate.landmarks,
+                        landmark_ids=estimate.landmark_ids, covariance=estimate.covariance)
+
+
+def load_map(path: PathLike) -> Estimate:
+    """Reads a map written by :func:`save_map`."""
+    with np.load(path) as data:
+        return Estimate(robot=data["robot"], landmarks=data["landmarks"],
+                        landmark_ids=data["landmark_ids"], covariance=data["covariance"])
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars and arrays -> built-in types, recursively, for ``json``."""
+    if isinstance(value, dict):
+        return {str(key): _plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(item) for item in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def write_stats_json(path: PathLike, result, extra: Optional[Dict[str, Any]] = None) -> None:
+    """Writes a :class:`~dcslam.pipeline.PipelineResult`'s numbers as JSON.
+
+    Keys: ``summary`` (totals, map size, joins, association counts), ``config``,
+    ``per_step`` (``t``, ``seconds``, ``num_features``, ``measurements``, ``paired``,
+    ``new_features``, ``rejected``), ``joins`` (D&C join events), ``counters``, and the
+    entries of ``extra`` (e.g. ``gps_alignment``).
+    """
+    stats = result.stats
+    document = {
+        "summary": result.summary(),
+        "config": result.config.to_dict(),
+        "per_step": {
+            "t": result.timestamps,
+            "seconds": stats.step_seconds,
+            "num_features": stats.num_features,
+            "measurements": stats.measurements,
+            "paired": stats.paired,
+            "new_features": stats.new_features,
+            "rejected": stats.rejected,
+        },
+        "joins": result.joins,
+        "counters": stats.counters,
+        **(extra or {}),
+    }
+    with open(path, "w", encoding="utf-8") as out:
+        json.dump(_plain(document), out, indent=1)
+        out.write("\n")
