@@ -29,6 +29,9 @@ void define_config(py::module_& m) {
             c.association = parse_association(v, "SlamConfig.association");
           })
       .def_readwrite("gate_confidence", &SlamConfig::gate_confidence)
+      .def_readwrite("jcbb_max_nodes", &SlamConfig::jcbb_max_nodes)
+      .def_readwrite("min_sightings", &SlamConfig::min_sightings)
+      .def_readwrite("tentative_window", &SlamConfig::tentative_window)
       .def_readwrite("local_map_features", &SlamConfig::local_map_features)
       .def_property(
           "join_association",

@@ -51,6 +51,11 @@ void SlamConfig::validate() const {
   require(sensor_offset.allFinite(), "sensor_offset: must be finite");
   require(gate_confidence > 0.0 && gate_confidence < 1.0,
           "gate_confidence: must lie in (0, 1), got " + std::to_string(gate_confidence));
+  require(jcbb_max_nodes >= 1,
+          "jcbb_max_nodes: must be >= 1, got " + std::to_string(jcbb_max_nodes));
+  require(min_sightings >= 1, "min_sightings: must be >= 1, got " + std::to_string(min_sightings));
+  require(tentative_window >= 1,
+          "tentative_window: must be >= 1, got " + std::to_string(tentative_window));
   require(local_map_features >= 1,
           "local_map_features: must be >= 1, got " + std::to_string(local_map_features));
   require(rjc_b >= 1, "rjc_b: must be >= 1, got " + std::to_string(rjc_b));

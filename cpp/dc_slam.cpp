@@ -105,6 +105,12 @@ std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::ve
 }
 
 void DCSlam::close_local_map() {
+  local_->prune_tentative();
+  {
+    // Ids of the local map's removed tentative features resolve to -1 from now on.
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (std::int64_t id : local_->removed_ids()) merged_into_[id] = -1;
+  }
   auto node = std::make_shared<Node>();
   node->map = compact_copy(local_->map());
   node->expected_features = node->map->num_features();
@@ -282,10 +288,11 @@ Vec3 DCSlam::pose() const {
 }
 
 std::vector<std::int64_t> DCSlam::resolve(const std::vector<std::int64_t>& ids) const {
+  std::vector<std::int64_t> resolved_local = local_->resolve(ids);
   std::lock_guard<std::mutex> lock(mutex_);
   std::vector<std::int64_t> resolved;
   resolved.reserve(ids.size());
-  for (std::int64_t id : ids) {
+  for (std::int64_t id : resolved_local) {
     for (auto it = merged_into_.find(id); it != merged_into_.end(); it = merged_into_.find(id)) {
       id = it->second;
     }

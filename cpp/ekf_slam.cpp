@@ -30,11 +30,37 @@ Matrix symmetric_part(const Matrix& A) {
 
 EkfSlam::EkfSlam(const SlamConfig& config) : config_(config) {
   config_.validate();
-  if (config_.association != Association::Known) {
-    throw InvalidArgument(std::string("SlamConfig.association: '") +
-                          to_string(config_.association) +
-                          "' is not implemented yet in EkfSlam (use 'known')");
+  if (config_.association != Association::Known) association_.emplace(config_);
+}
+
+bool EkfSlam::tentative_policy() const {
+  return config_.association != Association::Known && config_.min_sightings > 1;
+}
+
+template <typename Expired>
+void EkfSlam::remove_tentative(Expired expired) {
+  if (!tentative_policy()) return;
+  // Backwards: the feature swapped into slot k comes from the end, already kept.
+  for (Index k = map_.num_features() - 1; k >= 0; --k) {
+    const Track& track = tracks_[static_cast<std::size_t>(k)];
+    if (track.sightings >= config_.min_sightings || !expired(track)) continue;
+    const std::int64_t id = map_.ids()[static_cast<std::size_t>(k)];
+    // Deleting the rows and columns of a Gaussian's component is its exact marginal.
+    const Index moved_from = map_.swap_remove_feature(k);
+    index_of_id_.erase(id);
+    removed_ids_.insert(id);
+    if (moved_from >= 0) {
+      tracks_[static_cast<std::size_t>(k)] = tracks_[static_cast<std::size_t>(moved_from)];
+      index_of_id_[map_.ids()[static_cast<std::size_t>(k)]] = k;
+    }
+    tracks_.pop_back();
+    association_->feature_swap_removed(k, moved_from);
+    ++stats_.counters["tentative_removed"];
   }
+}
+
+void EkfSlam::prune_tentative() {
+  remove_tentative([](const Track&) { return true; });
 }
 
 StepStats& EkfSlam::current_step() {
@@ -54,6 +80,7 @@ void EkfSlam::predict(const Vec3& u, const Mat3& Q) {
   const auto start = Clock::now();
   stats_.steps.emplace_back();
   ++stats_.counters["predicts"];
+  ++step_;
 
   Mat3 F, G;
   const Vec3 robot = compose(map_.robot(), u, &F, &G);
@@ -76,8 +103,11 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
   const auto start = Clock::now();
   const auto m = static_cast<std::size_t>(z.rows());
 
+  remove_tentative(
+      [this](const Track& track) { return step_ - track.last_seen_step > config_.tentative_window; });
   associate(z, R, landmark_ids);
   update_paired(z, R);
+  if (association_ && !paired_measurements_.empty()) association_->map_updated(map_);
 
   // New features come from the robot as updated by the paired measurements (DESIGN.md §3).
   std::vector<std::int64_t> assigned(m, -1);
@@ -87,12 +117,17 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
     const Index decision = pairing_[i];
     if (decision >= 0) {
       assigned[i] = map_.ids()[static_cast<std::size_t>(decision)];
+      Track& track = tracks_[static_cast<std::size_t>(decision)];
+      ++track.sightings;
+      track.last_seen_step = step_;
       ++step.paired;
     } else if (decision == kNewFeature) {
       const std::int64_t id = landmark_ids ? (*landmark_ids)[i] : next_fresh_id_++;
       const Index index =
           add_feature(z.row(static_cast<Index>(i)).transpose(), covariance_of(R, i), id);
       index_of_id_[id] = index;
+      tracks_.push_back(Track{1, step_});
+      if (association_) association_->feature_added(map_, index);
       assigned[i] = id;
       ++step.new_features;
     } else {
@@ -104,19 +139,14 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
   return assigned;
 }
 
-void EkfSlam::associate(const MeasurementsRef& z, const std::vector<Mat2>& /*R*/,
+void EkfSlam::associate(const MeasurementsRef& z, const std::vector<Mat2>& R,
                         const std::vector<std::int64_t>* landmark_ids) {
-  pairing_.assign(static_cast<std::size_t>(z.rows()), kRejected);
-  switch (config_.association) {
-    case Association::Known:
-      associate_known(*landmark_ids);  // check_measurements guarantees the ids in this mode
-      return;
-    case Association::NearestNeighbour:
-    case Association::Jcbb:
-      // Unreachable: the constructor refuses these modes until they are implemented.
-      throw InvalidArgument(std::string("SlamConfig.association: '") +
-                            to_string(config_.association) + "' is not implemented yet");
+  if (association_) {
+    association_->associate(map_, z, R, pairing_, stats_.counters);
+    return;
   }
+  pairing_.assign(static_cast<std::size_t>(z.rows()), kRejected);
+  associate_known(*landmark_ids);  // check_measurements guarantees the ids in this mode
 }
 
 void EkfSlam::associate_known(const std::vector<std::int64_t>& landmark_ids) {
@@ -253,13 +283,19 @@ Estimate EkfSlam::estimate() const {
 }
 
 std::vector<std::int64_t> EkfSlam::resolve(const std::vector<std::int64_t>& ids) const {
-  return ids;
+  std::vector<std::int64_t> resolved = ids;
+  for (std::int64_t& id : resolved) {
+    if (removed_ids_.count(id) != 0) id = -1;
+  }
+  return resolved;
 }
 
 GaussianMap EkfSlam::take_map() {
   GaussianMap taken = std::move(map_);
   map_ = GaussianMap();
   index_of_id_.clear();
+  tracks_.clear();
+  if (association_) association_->clear();
   return taken;
 }
 

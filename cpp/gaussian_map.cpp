@@ -101,4 +101,31 @@ void GaussianMap::remove_features(std::vector<Index> indices) {
   ids_ = std::move(kept_ids);
 }
 
+GaussianMap::Index GaussianMap::swap_remove_feature(Index k) {
+  const Index n = num_features();
+  if (k < 0 || k >= n) {
+    throw InvalidArgument("GaussianMap::swap_remove_feature: bad feature index " + std::to_string(k));
+  }
+  const Index last = n - 1;
+  if (k != last) {
+    const Index to = feature_offset(k), from = feature_offset(last);
+    // Columns first (every row but the two moving blocks), then the diagonal block, then the
+    // rows as the mirror of the columns: P stays symmetric.
+    for (Index j = 0; j < dim_; ++j) {
+      if (j >= to && j < to + kFeatureDim) continue;
+      P_.block<2, 1>(to, j) = P_.block<2, 1>(from, j);
+    }
+    P_.block<2, 2>(to, to) = P_.block<2, 2>(from, from);
+    for (Index j = 0; j < dim_; ++j) {
+      if (j >= to && j < to + kFeatureDim) continue;
+      P_.block<1, 2>(j, to) = P_.block<2, 1>(to, j).transpose();
+    }
+    x_.segment<2>(to) = x_.segment<2>(from);
+    ids_[static_cast<std::size_t>(k)] = ids_[static_cast<std::size_t>(last)];
+  }
+  dim_ -= kFeatureDim;
+  ids_.pop_back();
+  return k == last ? -1 : last;
+}
+
 }  // namespace dcslam

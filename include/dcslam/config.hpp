@@ -24,6 +24,13 @@ struct SlamConfig {
   Vec3 sensor_offset = Vec3::Zero();
   Association association = Association::Jcbb;
   double gate_confidence = 0.99;
+  // "jcbb": interpretation-tree nodes per scan before JCBB returns its best hypothesis so far.
+  std::int64_t jcbb_max_nodes = 20000;
+  // Spurious measurements ("nn"/"jcbb" only; docs/data_association.md): a new feature stays
+  // tentative until it has been seen min_sightings times (1 = confirmed at birth, policy off);
+  // a tentative feature not seen for more than tentative_window steps is removed.
+  int min_sightings = 2;
+  int tentative_window = 5;
   int local_map_features = 30;
   JoinAssociation join_association = JoinAssociation::Rjc;
   int rjc_b = 4;

@@ -5,12 +5,15 @@
 // and the builder of DCSlam's local maps.
 #include <chrono>
 #include <cstdint>
+#include <optional>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 #include <Eigen/Core>
 
 #include "dcslam/config.hpp"
+#include "dcslam/ekf_association.hpp"
 #include "dcslam/gaussian_map.hpp"
 #include "dcslam/slam_filter.hpp"
 
@@ -21,11 +24,10 @@ class EkfSlam : public SlamFilter {
   using Index = Eigen::Index;
 
   // Outcome of data association for one measurement: a feature index (>= 0) or one of these.
-  static constexpr Index kNewFeature = -1;
-  static constexpr Index kRejected = -2;
+  static constexpr Index kNewFeature = dcslam::kNewFeature;
+  static constexpr Index kRejected = dcslam::kRejected;
 
-  // Validates the config. Association modes "nn" and "jcbb" are not implemented yet and
-  // throw InvalidArgument (see associate()).
+  // Validates the config (InvalidArgument naming the field).
   explicit EkfSlam(const SlamConfig& config);
 
   void predict(const Vec3& u, const Mat3& Q) override;
@@ -33,12 +35,20 @@ class EkfSlam : public SlamFilter {
                                    const std::vector<std::int64_t>* landmark_ids) override;
   Estimate estimate() const override;
   Vec3 pose() const override { return map_.robot(); }
-  // EKF features never merge: the identity (-1 stays -1).
+  // EKF features never merge: the identity, except that ids of removed tentative features
+  // (and -1) give -1.
   std::vector<std::int64_t> resolve(const std::vector<std::int64_t>& ids) const override;
   const RunStats& stats() const override { return stats_; }
 
   const SlamConfig& config() const { return config_; }
   const GaussianMap& map() const { return map_; }
+  // Removes every tentative feature now (D&C calls it before closing a local map, so that
+  // joins only see confirmed features). Does nothing when the policy is off ("known" mode or
+  // min_sightings = 1). O(n) per removed feature.
+  void prune_tentative();
+  // Ids of the features removed so far by the spurious-measurement policy.
+  const std::unordered_set<std::int64_t>& removed_ids() const { return removed_ids_; }
+
   // Hands the map over (D&C closing a local map) and restarts this filter as a fresh one at
   // the origin of a new base frame. Stats and the fresh-id counter carry on.
   GaussianMap take_map();
@@ -50,8 +60,7 @@ class EkfSlam : public SlamFilter {
 
  private:
   // Fills pairing_ (one entry per measurement: feature index, kNewFeature or kRejected).
-  // The seam for data association: "known" looks ids up; "nn"/"jcbb" will plug in here
-  // (implemented in their own files) reading map_, z, R and config_.
+  // The seam for data association: "known" looks ids up; "nn"/"jcbb" run EkfAssociation.
   void associate(const MeasurementsRef& z, const std::vector<Mat2>& R,
                  const std::vector<std::int64_t>* landmark_ids);
   void associate_known(const std::vector<std::int64_t>& landmark_ids);
@@ -62,6 +71,11 @@ class EkfSlam : public SlamFilter {
   Index add_feature(const Vec2& z, const Mat2& R, std::int64_t id);
   // Copies the lower triangle of P onto the upper one.
   void mirror_lower_triangle();
+  // The spurious-measurement policy (docs/data_association.md) applies in this filter.
+  bool tentative_policy() const;
+  // Removes the tentative features for which `expired` holds, in O(n) each.
+  template <typename Expired>
+  void remove_tentative(Expired expired);
   void ensure_workspace(Index rows, Index measurement_rows);
   StepStats& current_step();
   void finish_timing(std::chrono::steady_clock::time_point start);
@@ -71,6 +85,16 @@ class EkfSlam : public SlamFilter {
   std::unordered_map<std::int64_t, Index> index_of_id_;
   std::int64_t next_fresh_id_ = 0;
   RunStats stats_;
+  std::optional<EkfAssociation> association_;  // "nn" and "jcbb" only
+
+  // Per feature (state order): how often it has been seen and the step it was last seen in.
+  struct Track {
+    int sightings = 0;
+    std::int64_t last_seen_step = 0;
+  };
+  std::vector<Track> tracks_;
+  std::int64_t step_ = 0;  // predicts so far
+  std::unordered_set<std::int64_t> removed_ids_;
 
   // Workspaces kept across steps so that the hot path does not allocate; they only grow.
   std::vector<Index> pairing_;

@@ -49,6 +49,9 @@ class GaussianMap {
 
   // Removes features by index (any order, no duplicates) in one O(n^2) compaction pass.
   void remove_features(std::vector<Index> indices);
+  // Removes feature k in O(n) by moving the last feature into its place (state order is not
+  // kept). Returns the former index of the feature now at k, or -1 if k was the last one.
+  Index swap_remove_feature(Index k);
 
   // Hands the covariance over (moved, without a copy, when the storage fits exactly) and
   // leaves the map empty: for the last use of a map, such as turning it into an Estimate.

@@ -23,6 +23,14 @@ class SlamConfig:
         sensor_offset: sensor pose (x, y, phi) on the robot.
         association: data association inside local maps: ``"known"``, ``"nn"`` or ``"jcbb"``.
         gate_confidence: chi-square confidence of the individual/joint compatibility tests.
+        jcbb_max_nodes: ``"jcbb"``: interpretation-tree nodes per scan (>= 1) before JCBB
+            returns the best hypothesis found so far (counted in ``stats.counters``
+            ``"jcbb_bound_hits"``).
+        min_sightings: ``"nn"``/``"jcbb"``: a new feature is tentative until it has been
+            seen this many times (>= 1; 1 turns the spurious-measurement policy off).
+        tentative_window: ``"nn"``/``"jcbb"``: a tentative feature not seen for more than
+            this many steps (>= 1) is removed from the map (its id then resolves to -1).
+            Never applied in ``"known"`` mode, where the caller's ids are trusted.
         local_map_features: D&C closes a local map when it holds this many features.
         join_association: association at D&C joins: ``"rjc"``, ``"jcbb"`` or ``"known"``.
         rjc_b, rjc_p_good, rjc_p_fail: RJC (Paz et al. 2007, Alg. 3) parameters.
@@ -36,6 +44,9 @@ class SlamConfig:
     sensor_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
     association: str = "jcbb"
     gate_confidence: float = 0.99
+    jcbb_max_nodes: int = 20000
+    min_sightings: int = 2
+    tentative_window: int = 5
     local_map_features: int = 30
     join_association: str = "rjc"
     rjc_b: int = 4

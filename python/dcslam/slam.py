@@ -116,7 +116,11 @@ class SlamFilter:
         return self._core.pose()
 
     def resolve(self, ids) -> np.ndarray:
-        """Maps ids ever returned by :meth:`update` to the feature holding them now; -1 stays -1."""
+        """Maps ids ever returned by :meth:`update` to the feature holding them now.
+
+        -1 stays -1; the id of a feature removed as spurious (a tentative feature, see
+        :class:`EkfSlam`) becomes -1.
+        """
         return self._core.resolve(ids)
 
     @property
@@ -144,8 +148,27 @@ class EkfSlam(SlamFilter):
     """Sparse-aware EKF SLAM on one map (DESIGN.md §3; Paz et al. 2007, §II).
 
     Cost per step O(n) except the covariance downdate, O(n^2), done in one pass over one
-    triangle of P. Data association: ``"known"`` (landmark ids given to :meth:`update`);
-    ``"nn"`` and ``"jcbb"`` are not implemented yet and raise ``ValueError``.
+    triangle of P. Data association (``cfg.association``):
+
+    - ``"known"``: landmark ids given to :meth:`update`;
+    - ``"nn"``: nearest neighbour among individually compatible features (2-dof chi-square
+      gate at ``cfg.gate_confidence``);
+    - ``"jcbb"``: Joint Compatibility Branch and Bound over the scan (most pairings, then
+      lowest joint Mahalanobis distance), at most ``cfg.jcbb_max_nodes`` tree nodes per scan;
+      ``stats.counters`` has ``"jcbb_nodes"`` and ``"jcbb_bound_hits"``.
+
+    Candidates come from a spatial hash of the feature means queried with a radius that
+    provably contains every gate-passing feature, so a step's association is O(m) for a
+    bounded sensor range (docs/data_association.md). In ``"nn"``/``"jcbb"`` a measurement
+    compatible with no feature starts one; one that is compatible with some feature but left
+    unpaired (e.g. two measurements competing for one feature) is rejected (id -1) rather
+    than duplicating a landmark.
+
+    Spurious measurements: a new feature is tentative until seen ``cfg.min_sightings``
+    times; a tentative feature not seen for more than ``cfg.tentative_window`` steps is
+    removed from the map (exact marginalisation), and from then on :meth:`resolve` maps its
+    id to -1 (``stats.counters["tentative_removed"]`` counts them). ``"known"`` mode never
+    removes features.
 
     Args:
         cfg: the run's options; default ``SlamConfig()``.
@@ -186,7 +209,8 @@ class DCSlam(SlamFilter):
 
     Data association at joins: ``cfg.join_association`` (``"rjc"``, ``"jcbb"`` or
     ``"known"``); :meth:`resolve` maps the id of a feature merged at a join to the feature
-    that holds it now.
+    that holds it now, and the id of a tentative feature removed by the spurious-measurement
+    policy (see :class:`EkfSlam`; a local map is closed without its tentative features) to -1.
     """
 
     def __init__(self, cfg: Optional[SlamConfig] = None):

@@ -333,12 +333,32 @@ TEST(InputChecks, SemiDefiniteQWithZeroVarianceAndTinyRoundingPasses) {
   EXPECT_THROW(check_motion(Vec3::Zero(), Q, "predict"), InvalidArgument);
 }
 
-TEST(EkfSlam, UnimplementedAssociationModesAreRefusedAtConstruction) {
+TEST(EkfSlam, AssociationModesWithoutIdsAreBuiltAndBadOptionsRefused) {
   SlamConfig config;
-  config.association = Association::Jcbb;
-  EXPECT_THROW(EkfSlam{config}, InvalidArgument);
-  config.association = Association::NearestNeighbour;
-  EXPECT_THROW(EkfSlam{config}, InvalidArgument);
+  for (Association mode : {Association::Jcbb, Association::NearestNeighbour}) {
+    config.association = mode;
+    EXPECT_NO_THROW(EkfSlam{config});
+  }
+  const auto refused = [](SlamConfig bad, const std::string& field) {
+    try {
+      EkfSlam slam(bad);
+      ADD_FAILURE() << field << " accepted";
+    } catch (const InvalidArgument& error) {
+      EXPECT_NE(std::string(error.what()).find("SlamConfig." + field), std::string::npos) << error.what();
+    }
+  };
+  SlamConfig bad = config;
+  bad.jcbb_max_nodes = 0;
+  refused(bad, "jcbb_max_nodes");
+  bad = config;
+  bad.min_sightings = 0;
+  refused(bad, "min_sightings");
+  bad = config;
+  bad.tentative_window = 0;
+  refused(bad, "tentative_window");
+  bad = config;
+  bad.gate_confidence = 1.0;
+  refused(bad, "gate_confidence");
 }
 
 TEST(EkfSlam, TakeMapRestartsAtTheOrigin) {

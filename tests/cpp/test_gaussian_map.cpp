@@ -60,5 +60,34 @@ TEST(GaussianMap, RemoveFeaturesMatchesSelectingKeptRowsAndColumns) {
   EXPECT_EQ(map.ids(), ids);
 }
 
+// Swap-removal equals selecting the kept rows and columns in the order last-into-k.
+TEST(GaussianMap, SwapRemoveFeatureMovesTheLastFeatureIntoTheHole) {
+  for (int removed : {0, 3, 6}) {
+    const GaussianMap original = labelled_map(7);
+    GaussianMap map = original;
+    EXPECT_EQ(map.swap_remove_feature(removed), removed == 6 ? -1 : 6);
+    std::vector<int> source_feature{0, 1, 2, 3, 4, 5};
+    if (removed != 6) source_feature[static_cast<std::size_t>(removed)] = 6;
+    std::vector<Eigen::Index> source{0, 1, 2};
+    for (int f : source_feature) {
+      source.push_back(GaussianMap::feature_offset(f));
+      source.push_back(GaussianMap::feature_offset(f) + 1);
+    }
+    ASSERT_EQ(map.dim(), static_cast<Eigen::Index>(source.size()));
+    for (Eigen::Index i = 0; i < map.dim(); ++i) {
+      EXPECT_EQ(map.x()(i), original.x()(source[static_cast<std::size_t>(i)]));
+      for (Eigen::Index j = 0; j < map.dim(); ++j) {
+        EXPECT_EQ(map.P()(i, j), original.P()(source[static_cast<std::size_t>(i)], source[static_cast<std::size_t>(j)]))
+            << removed << " " << i << " " << j;
+      }
+    }
+    for (std::size_t k = 0; k < source_feature.size(); ++k) {
+      EXPECT_EQ(map.ids()[k], 100 + source_feature[k]);
+    }
+  }
+  GaussianMap map = labelled_map(2);
+  EXPECT_THROW(map.swap_remove_feature(2), std::exception);
+}
+
 }  // namespace
 }  // namespace dcslam

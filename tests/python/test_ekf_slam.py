@@ -307,11 +307,13 @@ def test_bad_input_raises_value_error_naming_the_argument_and_changes_nothing():
         assert len(slam.stats.step_seconds) == n_steps
 
 
-def test_unimplemented_association_modes_are_refused_naming_the_field():
+def test_association_modes_without_ids_are_built_and_unknown_ones_refused():
+    for mode in ("jcbb", "nn"):
+        slam = dcslam.EkfSlam(dcslam.SlamConfig(association=mode))
+        with pytest.raises(ValueError, match="landmark_ids"):
+            slam.update([[2.0, 0.1]], np.eye(2) * 0.01, [3])
     with pytest.raises(ValueError, match="association"):
-        dcslam.EkfSlam(dcslam.SlamConfig(association="jcbb"))
-    with pytest.raises(ValueError, match="association"):
-        dcslam.EkfSlam(dcslam.SlamConfig(association="nn"))
+        dcslam.EkfSlam(dcslam.SlamConfig(association="jcbb2"))
 
 
 def test_empty_scans_clutter_ids_and_resolve():
@@ -330,6 +332,8 @@ def test_empty_scans_clutter_ids_and_resolve():
     assert slam.pose().shape == (3,)
 
 
-def test_default_config_is_jcbb_and_refused_until_implemented():
-    with pytest.raises(ValueError):
-        dcslam.EkfSlam()
+def test_default_config_is_jcbb():
+    slam = dcslam.EkfSlam()
+    assert slam.config.association == "jcbb"
+    ids = slam.update([[2.0, 0.1]], np.eye(2) * 0.01)
+    assert ids.tolist() == [0]

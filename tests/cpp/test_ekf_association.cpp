@@ -1,0 +1,329 @@
+// EKF data association against independent oracles: the dense H P H' of the whole state, a
+// brute-force gate over every feature, and exhaustive enumeration of JCBB hypotheses.
+#include <algorithm>
+#include <cmath>
+#include <functional>
+#include <map>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <Eigen/Dense>
+#include <gtest/gtest.h>
+
+#include "dcslam/chi_square.hpp"
+#include "dcslam/dc_slam.hpp"
+#include "dcslam/ekf_association.hpp"
+#include "dcslam/ekf_slam.hpp"
+#include "dcslam/observation.hpp"
+
+namespace dcslam {
+namespace {
+
+using Eigen::Index;
+using Eigen::MatrixXd;
+
+const Vec3 kOffset(0.4, -0.2, 0.1);
+
+// A map of n features scattered around the robot with a random dense covariance: robot
+// position std ~ position_std, heading std ~ heading_std, features ~ feature_std, and
+// random correlations between everything.
+GaussianMap random_map(std::mt19937_64& rng, int n, double spread, double position_std,
+                       double heading_std, double feature_std) {
+  std::uniform_real_distribution<double> uniform(-1.0, 1.0);
+  GaussianMap map;
+  map.x().head<3>() = Vec3(uniform(rng), uniform(rng), M_PI * uniform(rng));
+  for (int k = 0; k < n; ++k) {
+    map.append_feature(map.robot().head<2>() + spread * Vec2(uniform(rng), uniform(rng)), 1000 + k);
+  }
+  const Index dim = map.dim();
+  MatrixXd A(dim, dim);
+  for (Index i = 0; i < dim; ++i) {
+    for (Index j = 0; j < dim; ++j) A(i, j) = uniform(rng);
+  }
+  Eigen::VectorXd scale(dim);
+  scale << position_std, position_std, heading_std, Eigen::VectorXd::Constant(dim - 3, feature_std);
+  // Correlated unit-variance-ish core, then scaled per component.
+  const MatrixXd core = (A * A.transpose()) / static_cast<double>(dim) + 0.05 * MatrixXd::Identity(dim, dim);
+  map.P() = scale.asDiagonal() * core * scale.asDiagonal();
+  return map;
+}
+
+Mat2 noise_for(ObservationModel observation) {
+  return observation == ObservationModel::RangeBearing ? Mat2(Vec2(0.05 * 0.05, 0.02 * 0.02).asDiagonal())
+                                                       : Mat2(Vec2(0.04, 0.03).asDiagonal());
+}
+
+// The dense Jacobian of measurement-of-feature-j with respect to the whole state.
+MatrixXd dense_H(const GaussianMap& map, ObservationModel observation, int feature) {
+  Mat23 H_R;
+  Mat2 H_f;
+  observe(observation, kOffset, map.robot(), map.feature(feature), &H_R, &H_f);
+  MatrixXd H = MatrixXd::Zero(2, map.dim());
+  H.leftCols<3>() = H_R;
+  H.middleCols<2>(GaussianMap::feature_offset(feature)) = H_f;
+  return H;
+}
+
+class EkfAssociationTest : public ::testing::TestWithParam<ObservationModel> {};
+
+TEST_P(EkfAssociationTest, PairingModelCovarianceEqualsDenseHPHt) {
+  const ObservationModel observation = GetParam();
+  std::mt19937_64 rng(7);
+  const GaussianMap map = random_map(rng, 6, 4.0, 0.3, 0.1, 0.4);
+  MeasurementMatrix z(3, 2);
+  std::vector<Mat2> R;
+  for (int i = 0; i < 3; ++i) {
+    z.row(i) = observe(observation, kOffset, map.robot(), map.feature(i)).transpose() + Vec2(0.1, -0.05).transpose();
+    R.push_back(noise_for(observation) * (1.0 + i));
+  }
+  EkfPairingModel model;
+  model.reset(map, observation, kOffset, z, R);
+  for (int j = 0; j < map.num_features(); ++j) model.prepare(j);
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < map.num_features(); ++j) {
+      const Pairing a{i, j};
+      const Vec2 expected_nu = innovation(
+          observation, z.row(i).transpose(), observe(observation, kOffset, map.robot(), map.feature(j)));
+      EXPECT_TRUE(model.innovation(a).isApprox(expected_nu, 1e-12));
+      for (int k = 0; k < 3; ++k) {
+        for (int l = 0; l < map.num_features(); ++l) {
+          const Pairing b{k, l};
+          MatrixXd expected = dense_H(map, observation, j) * map.P() * dense_H(map, observation, l).transpose();
+          if (i == k) expected += R[static_cast<std::size_t>(i)];
+          EXPECT_LT((model.covariance(a, b) - expected).norm(), 1e-10 * (1.0 + expected.norm()))
+              << i << j << k << l;
+        }
+      }
+    }
+  }
+}
+
+// The features passing the 2-dof gate found by testing every feature of the map.
+std::vector<int> gate_passing(const GaussianMap& map, ObservationModel observation, const MeasurementMatrix& z,
+                              const std::vector<Mat2>& R, int measurement, double gate) {
+  EkfPairingModel model;
+  model.reset(map, observation, kOffset, z, R);
+  std::vector<int> passing;
+  for (int j = 0; j < map.num_features(); ++j) {
+    model.prepare(j);
+    if (individual_distance_sq(model, Pairing{measurement, j}) <= gate) passing.push_back(j);
+  }
+  return passing;
+}
+
+TEST_P(EkfAssociationTest, CandidateSearchNeverMissesAGatePassingFeature) {
+  const ObservationModel observation = GetParam();
+  SlamConfig config;
+  config.observation = observation;
+  config.sensor_offset = kOffset;
+  config.association = Association::Jcbb;
+  const double gate = chi2_quantile(2, config.gate_confidence);
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  int gate_passes = 0, candidates_total = 0, features_total = 0;
+  for (int trial = 0; trial < 150; ++trial) {
+    // Wide ranges of uncertainty (the Cartesian bound needs sqrt(gate) sigma_heading < 1),
+    // and every third trial a local-map-like one, where the search must stay local.
+    const bool local = trial % 3 == 0;
+    const double heading_std = (local ? 0.02 : observation == ObservationModel::Point ? 0.2 : 0.6) * uniform(rng);
+    GaussianMap map = random_map(rng, 60, 12.0, (local ? 0.2 : 1.5) * uniform(rng), heading_std,
+                                 (local ? 0.1 : 0.8) * uniform(rng));
+    EkfAssociation association(config);
+    for (Index k = 0; k < map.num_features(); ++k) association.feature_added(map, k);
+    // Means drift a little (below and above the re-hash slack) and one feature is removed,
+    // as after an update and a pruning.
+    for (Index k = 0; k < map.num_features(); ++k) {
+      map.x().segment<2>(GaussianMap::feature_offset(k)) += 0.3 * uniform(rng) * Vec2(normal(rng), normal(rng));
+    }
+    association.map_updated(map);
+    const Index removed = static_cast<Index>(uniform(rng) * 50);
+    association.feature_swap_removed(removed, map.swap_remove_feature(removed));
+
+    MeasurementMatrix z(8, 2);
+    std::vector<Mat2> R;
+    for (int i = 0; i < 8; ++i) {
+      const int target = static_cast<int>(uniform(rng) * static_cast<double>(map.num_features()));
+      Vec2 zi = observe(observation, kOffset, map.robot(), map.feature(target));
+      if (observation == ObservationModel::RangeBearing) {
+        zi += Vec2(0.5 * normal(rng), 0.2 * normal(rng));
+        zi(0) = std::max(0.05, std::abs(zi(0)));
+      } else {
+        zi += Vec2(normal(rng), normal(rng));
+      }
+      z.row(i) = zi.transpose();
+      R.push_back(noise_for(observation) * (0.2 + 3.0 * uniform(rng)));
+    }
+    // A full association first: it resizes the hash cells to the scan's radii.
+    std::vector<Index> pairing;
+    std::map<std::string, double> counters;
+    association.associate(map, z, R, pairing, counters);
+    std::vector<int> found;
+    for (int i = 0; i < 8; ++i) {
+      association.candidates(map, z.row(i).transpose(), R[static_cast<std::size_t>(i)], found);
+      for (int j : gate_passing(map, observation, z, R, i, gate)) {
+        ++gate_passes;
+        EXPECT_NE(std::find(found.begin(), found.end(), j), found.end())
+            << "trial " << trial << " measurement " << i << " missed feature " << j;
+      }
+      if (local) {
+        candidates_total += static_cast<int>(found.size());
+        features_total += static_cast<int>(map.num_features());
+      }
+    }
+  }
+  EXPECT_GT(gate_passes, 500);  // the oracle had plenty to check
+  EXPECT_LT(candidates_total, features_total / 5);  // and the search is a search, not a scan
+}
+
+// Every admissible hypothesis (each measurement: star or a gate-passing feature, features
+// once, every prefix jointly compatible), best = most pairings then lowest D^2.
+std::vector<int> brute_force_jcbb(const CandidateLists& candidates, const PairingModel& model, double confidence) {
+  const int m = static_cast<int>(candidates.size());
+  std::vector<int> current(static_cast<std::size_t>(m), kStar), best = current;
+  int best_pairings = 0;
+  double best_distance = 0.0;
+  std::function<void(int, int)> visit = [&](int i, int pairings) {
+    if (pairings > 0) {
+      std::vector<int> prefix = current;
+      for (int k = i; k < m; ++k) prefix[static_cast<std::size_t>(k)] = kStar;
+      const double distance = joint_distance_sq(prefix, model);
+      if (!(distance <= chi2_quantile(2 * pairings, confidence))) return;
+      if (i == m && (pairings > best_pairings || (pairings == best_pairings && distance < best_distance))) {
+        best = prefix;
+        best_pairings = pairings;
+        best_distance = distance;
+      }
+    }
+    if (i == m) return;
+    for (int feature : candidates[static_cast<std::size_t>(i)]) {
+      if (std::find(current.begin(), current.begin() + i, feature) != current.begin() + i) continue;
+      current[static_cast<std::size_t>(i)] = feature;
+      visit(i + 1, pairings + 1);
+    }
+    current[static_cast<std::size_t>(i)] = kStar;
+    visit(i + 1, pairings);
+  };
+  visit(0, 0);
+  return best;
+}
+
+TEST_P(EkfAssociationTest, JcbbEqualsExhaustiveEnumerationOnCrowdedScans) {
+  const ObservationModel observation = GetParam();
+  SlamConfig config;
+  config.observation = observation;
+  config.sensor_offset = kOffset;
+  config.association = Association::Jcbb;
+  const double gate = chi2_quantile(2, config.gate_confidence);
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  int ambiguous_scans = 0;
+  for (int trial = 0; trial < 60; ++trial) {
+    // Few features close together under a large covariance: many candidates per measurement.
+    const GaussianMap map = random_map(rng, 7, 1.5, 0.2, 0.05, 0.25);
+    EkfAssociation association(config);
+    for (Index k = 0; k < map.num_features(); ++k) association.feature_added(map, k);
+    const int m = 5;
+    MeasurementMatrix z(m, 2);
+    std::vector<Mat2> R{noise_for(observation)};
+    for (int i = 0; i < m; ++i) {
+      const int target = static_cast<int>(uniform(rng) * static_cast<double>(map.num_features()));
+      Vec2 zi = observe(observation, kOffset, map.robot(), map.feature(target));
+      zi += observation == ObservationModel::RangeBearing ? Vec2(0.2 * normal(rng), 0.1 * normal(rng))
+                                                          : Vec2(0.3 * normal(rng), 0.3 * normal(rng));
+      z.row(i) = zi.transpose();
+    }
+    std::vector<Index> pairing;
+    std::map<std::string, double> counters;
+    association.associate(map, z, R, pairing, counters);
+
+    CandidateLists candidates(m);
+    for (int i = 0; i < m; ++i) candidates[static_cast<std::size_t>(i)] = gate_passing(map, observation, z, R, i, gate);
+    EkfPairingModel model;
+    model.reset(map, observation, kOffset, z, R);
+    for (int j = 0; j < map.num_features(); ++j) model.prepare(j);
+    const std::vector<int> best = brute_force_jcbb(candidates, model, config.gate_confidence);
+    for (int i = 0; i < m; ++i) {
+      const auto& list = candidates[static_cast<std::size_t>(i)];
+      const Index expected = best[static_cast<std::size_t>(i)] != kStar ? best[static_cast<std::size_t>(i)]
+                             : list.empty()                             ? kNewFeature
+                                                                         : kRejected;
+      EXPECT_EQ(pairing[static_cast<std::size_t>(i)], expected) << "trial " << trial << " measurement " << i;
+      if (list.size() > 1) ++ambiguous_scans;
+    }
+    EXPECT_EQ(counters["jcbb_bound_hits"], 0.0);
+    EXPECT_GT(counters["jcbb_nodes"], 0.0);
+  }
+  EXPECT_GT(ambiguous_scans, 50);
+}
+
+INSTANTIATE_TEST_SUITE_P(Models, EkfAssociationTest,
+                         ::testing::Values(ObservationModel::RangeBearing, ObservationModel::Point));
+
+// A measurement seen once (spurious) is removed after tentative_window steps without a
+// sighting and its id resolves to -1; a landmark seen twice stays; "known" never prunes.
+TEST(EkfSlamTentative, UnconfirmedFeaturesAreRemovedAndResolveToMinusOne) {
+  SlamConfig config;
+  config.observation = ObservationModel::Point;
+  config.association = Association::Jcbb;
+  config.tentative_window = 3;
+  EkfSlam slam(config);
+  const std::vector<Mat2> R{Mat2::Identity() * 1e-4};
+  MeasurementMatrix first(2, 2);
+  first << 2.0, 0.0, 0.0, 3.0;  // landmark, then a one-off
+  MeasurementMatrix landmark_only(1, 2);
+  landmark_only << 2.0, 0.0;
+  const Mat3 Q = Mat3::Identity() * 1e-6;
+  slam.predict(Vec3::Zero(), Q);
+  const auto ids = slam.update(first, R, nullptr);
+  ASSERT_EQ(ids.size(), 2u);
+  for (int step = 0; step < 5; ++step) {
+    slam.predict(Vec3::Zero(), Q);
+    EXPECT_EQ(slam.update(landmark_only, R, nullptr)[0], ids[0]);
+    EXPECT_EQ(slam.map().num_features(), step < 3 ? 2 : 1) << step;
+  }
+  EXPECT_EQ(slam.resolve(ids), (std::vector<std::int64_t>{ids[0], -1}));
+  EXPECT_EQ(slam.stats().counters.at("tentative_removed"), 1.0);
+  EXPECT_EQ(slam.map().ids(), (std::vector<std::int64_t>{ids[0]}));
+
+  // A feature seen once more is confirmed: prune_tentative() keeps it, drops a fresh one.
+  MeasurementMatrix again(2, 2);
+  again << 2.0, 0.0, -3.0, 0.0;
+  slam.predict(Vec3::Zero(), Q);
+  const auto last = slam.update(again, R, nullptr);
+  slam.prune_tentative();
+  EXPECT_EQ(slam.map().ids(), (std::vector<std::int64_t>{ids[0]}));
+  EXPECT_EQ(slam.resolve({last[1]})[0], -1);
+
+  config.association = Association::Known;
+  EkfSlam known(config);
+  const std::vector<std::int64_t> given{4, 9};
+  known.update(first, R, &given);
+  for (int step = 0; step < 5; ++step) known.predict(Vec3::Zero(), Q);
+  const std::vector<std::int64_t> none;
+  known.update(MeasurementMatrix(0, 2), R, &none);
+  known.prune_tentative();
+  EXPECT_EQ(known.map().num_features(), 2);
+}
+
+// D&C: a local map is closed without its tentative features, whose ids resolve to -1.
+TEST(EkfSlamTentative, DcSlamClosesLocalMapsWithoutTentativeFeatures) {
+  SlamConfig config;
+  config.observation = ObservationModel::Point;
+  config.association = Association::Jcbb;
+  config.local_map_features = 2;
+  config.amortize = false;
+  DCSlam slam(config);
+  const std::vector<Mat2> R{Mat2::Identity() * 1e-4};
+  MeasurementMatrix z(2, 2);
+  z << 2.0, 0.0, 0.0, 3.0;
+  const auto ids = slam.update(z, R, nullptr);
+  EXPECT_EQ(slam.local_map().map().num_features(), 0);
+  EXPECT_EQ(slam.resolve(ids), (std::vector<std::int64_t>{-1, -1}));
+  EXPECT_EQ(slam.estimate().landmark_ids.size(), 0u);
+}
+
+}  // namespace
+}  // namespace dcslam
