@@ -38,6 +38,18 @@ double largest_std(const Mat2& covariance) {
   return std::sqrt(std::max(0.0, half_trace + std::sqrt(std::max(0.0, half_trace * half_trace - det))));
 }
 
+// Confidence of the individual gate that builds the candidate lists. It only prunes: the
+// decisions are taken by the joint test (JCBB) or by the gate conditioned on the seed
+// hypothesis (RJC), both at options.gate_confidence. The marginal pair covariance holds the
+// uncertainty of the relative pose of the two maps, an error shared by every pair that the
+// joint and conditional tests explain away; a true pair whose marginal distance exceeds the
+// decision gate is often compatible given the other pairs (e.g. marginal D^2 = 11.9,
+// conditional 4.0 on a loop of the batch least-squares test), so pruning at the decision
+// confidence would drop it before JCBB or RJC could accept it. Pruning at ten times the
+// decision gate's tail keeps those pairs: on the grid loop of test_dc_slam.cpp (paper's noise,
+// 10 seeds, 12,680 true pairs) recall rises from 98.9 % to 99.5 % with no wrong pairing.
+double candidate_confidence(double gate_confidence) { return 1.0 - 0.1 * (1.0 - gate_confidence); }
+
 }  // namespace
 
 JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options) {
@@ -49,7 +61,8 @@ JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& 
 
   // Candidate search radius: a pair (i, j) passes the gate only if |f'_j - f_i| <=
   // sqrt(gate) * (sigma_i + sigma_j), with sigma the largest standard deviation of each.
-  const double gate_radius = std::sqrt(chi2_quantile(2, options.gate_confidence));
+  const double pruning_confidence = candidate_confidence(options.gate_confidence);
+  const double gate_radius = std::sqrt(chi2_quantile(2, pruning_confidence));
   double sigma_first = 0.0;
   for (Index i = 0; i < n1; ++i) sigma_first = std::max(sigma_first, largest_std(frame.first_first(i, i)));
   std::vector<double> sigma_second(static_cast<std::size_t>(n2));
@@ -71,7 +84,7 @@ JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& 
     candidates[static_cast<std::size_t>(j)] = std::move(nearby);
     nearby = {};
   }
-  candidates = individually_compatible(candidates, model, options.gate_confidence);
+  candidates = individually_compatible(candidates, model, pruning_confidence);
   for (const auto& list : candidates) result.overlap += list.empty() ? 0 : 1;
 
   std::vector<int> feature_of;

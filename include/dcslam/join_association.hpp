@@ -2,7 +2,10 @@
 // Data association between the two maps of a D&C join without ids (DESIGN.md §6): candidate
 // pairs through a spatial hash over m1's features, individual compatibility with the pair
 // covariance P_ii + P_jj - P_ij - P_ji, then JCBB over the whole overlap ("jcbb") or RJC
-// (the paper's Algorithm 3, "rjc").
+// (the paper's Algorithm 3, "rjc"). The individual gate only prunes, at a tenth of the
+// decision gate's tail (0.999 for gate_confidence 0.99; the overlap counts features with a
+// candidate at that level); pairs are accepted by the joint or conditional test at
+// gate_confidence.
 #include <utility>
 #include <vector>
 

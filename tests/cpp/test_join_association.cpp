@@ -1,0 +1,312 @@
+#include <cmath>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "dcslam/ekf_slam.hpp"
+#include "dcslam/jcbb.hpp"
+#include "dcslam/join_association.hpp"
+
+namespace dcslam {
+namespace {
+
+using Index = Eigen::Index;
+using Pairs = std::vector<std::pair<Index, Index>>;
+
+constexpr double kSensorRange = 3.0;
+constexpr std::int64_t kClutterIds = 1000000;
+
+// A point that is only seen during steps [first_step, end_step): a spurious feature of the
+// local map built over those steps, absent from every other map.
+struct Clutter {
+  Vec2 position;
+  int first_step;
+  int end_step;
+};
+
+struct World {
+  std::vector<Vec2> landmarks;
+  std::vector<Clutter> clutter;
+};
+
+// Landmarks uniform in a box, at least `min_separation` apart (rejection sampling).
+std::vector<Vec2> landmark_field(const Vec2& lo, const Vec2& hi, int count, double min_separation,
+                                 std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> ux(lo.x(), hi.x()), uy(lo.y(), hi.y());
+  std::vector<Vec2> points;
+  for (int attempt = 0; static_cast<int>(points.size()) < count && attempt < 100 * count; ++attempt) {
+    const Vec2 candidate(ux(rng), uy(rng));
+    bool far_enough = true;
+    for (const Vec2& p : points) far_enough &= (p - candidate).norm() >= min_separation;
+    if (far_enough) points.push_back(candidate);
+  }
+  return points;
+}
+
+// Adds clutter points seen during steps [first_step, end_step) near the path, each at least
+// 1 m from every landmark and every other clutter point (10 sigma of the pair uncertainty at
+// these noise levels: closer, two spurious points of different maps would be
+// indistinguishable from one landmark seen in both).
+void add_clutter(World& world, const std::vector<Vec3>& path, int first_step, int end_step,
+                 int count, std::mt19937_64& rng) {
+  std::uniform_int_distribution<int> pick_step(first_step, end_step - 1);
+  std::uniform_real_distribution<double> offset(-kSensorRange, kSensorRange);
+  for (int added = 0; added < count;) {
+    const Vec2 point = path[static_cast<std::size_t>(pick_step(rng))].head<2>() +
+                       Vec2(offset(rng), offset(rng));
+    bool far_enough = true;
+    for (const Vec2& p : world.landmarks) far_enough &= (p - point).norm() >= 1.0;
+    for (const Clutter& c : world.clutter) far_enough &= (c.position - point).norm() >= 1.0;
+    if (!far_enough) continue;
+    world.clutter.push_back(Clutter{point, first_step, end_step});
+    ++added;
+  }
+}
+
+// True poses of a run: 1 m forward a step, turning left by 90 degrees every `side` steps.
+std::vector<Vec3> square_path(int steps, int side) {
+  std::vector<Vec3> path;
+  Vec3 pose = Vec3::Zero();
+  for (int k = 0; k < steps; ++k) {
+    const bool turn = (k % side) == side - 1;
+    pose = compose(pose, Vec3(1.0, 0.0, turn ? 1.5707963267948966 : 0.0));
+    path.push_back(pose);
+  }
+  return path;
+}
+
+// Noisy odometry and Cartesian point observations with the paper's noise (as in
+// test_dc_slam.cpp) and a known heading, with true landmark ids.
+std::vector<SlamStep> simulate(const World& world, const std::vector<Vec3>& path, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal;
+  const Mat3 Q = Vec3(0.01, 0.0025, 0.0).asDiagonal();
+  const Mat2 R = Vec2(0.01, 0.0025).asDiagonal();
+  std::vector<SlamStep> run;
+  Vec3 previous = Vec3::Zero();
+  for (std::size_t k = 0; k < path.size(); ++k) {
+    SlamStep step;
+    const Vec3 u_true = compose(invert(previous), path[k]);
+    previous = path[k];
+    step.u = u_true + Vec3(0.1 * normal(rng), 0.05 * normal(rng), 0.0);
+    step.Q = Q;
+    std::vector<Vec2> z;
+    auto observe = [&](const Vec2& point, std::int64_t id) {
+      const Vec2 local = inverse_transform_point(path[k], point);
+      if (local.norm() > kSensorRange) return;
+      z.push_back(local + Vec2(0.1 * normal(rng), 0.05 * normal(rng)));
+      step.landmark_ids.push_back(id);
+    };
+    for (std::size_t id = 0; id < world.landmarks.size(); ++id) {
+      observe(world.landmarks[id], static_cast<std::int64_t>(id));
+    }
+    for (std::size_t c = 0; c < world.clutter.size(); ++c) {
+      const Clutter& clutter = world.clutter[c];
+      const int step_index = static_cast<int>(k);
+      if (step_index >= clutter.first_step && step_index < clutter.end_step) {
+        observe(clutter.position, kClutterIds + static_cast<std::int64_t>(c));
+      }
+    }
+    step.z.resize(static_cast<Index>(z.size()), 2);
+    for (std::size_t i = 0; i < z.size(); ++i) step.z.row(static_cast<Index>(i)) = z[i].transpose();
+    step.R = {R};
+    step.has_landmark_ids = true;
+    run.push_back(std::move(step));
+  }
+  return run;
+}
+
+// Two consecutive local maps of a D&C run, built by the EKF with known ids: m1 over steps
+// [0, split), m2 over [split, end).
+std::pair<GaussianMap, GaussianMap> two_local_maps(const std::vector<SlamStep>& run, int split) {
+  SlamConfig config;
+  config.observation = ObservationModel::Point;
+  config.association = Association::Known;
+  EkfSlam ekf(config);
+  const auto split_at = run.begin() + split;
+  run_steps(ekf, std::vector<SlamStep>(run.begin(), split_at));
+  GaussianMap first = ekf.take_map();
+  run_steps(ekf, std::vector<SlamStep>(split_at, run.end()));
+  return {std::move(first), ekf.take_map()};
+}
+
+JoinOptions options_for(JoinAssociation association, std::uint64_t seed = 7) {
+  JoinOptions options;
+  options.association = association;
+  options.seed = seed;
+  return options;
+}
+
+int count_wrong(const Pairs& pairs, const GaussianMap& first, const GaussianMap& second) {
+  int wrong = 0;
+  for (const auto& [i, j] : pairs) {
+    wrong += first.ids()[static_cast<std::size_t>(i)] != second.ids()[static_cast<std::size_t>(j)] ? 1 : 0;
+  }
+  return wrong;
+}
+
+int count_clutter(const Pairs& pairs, const GaussianMap& first, const GaussianMap& second) {
+  int clutter = 0;
+  for (const auto& [i, j] : pairs) {
+    clutter += first.ids()[static_cast<std::size_t>(i)] >= kClutterIds ||
+                       second.ids()[static_cast<std::size_t>(j)] >= kClutterIds
+                   ? 1
+                   : 0;
+  }
+  return clutter;
+}
+
+class JoinAssociationModes : public ::testing::TestWithParam<JoinAssociation> {};
+
+// A square loop driven once and a half: m1 is the first lap, m2 the rest, so the join closes
+// the loop; each map also holds spurious features that the other does not have.
+TEST_P(JoinAssociationModes, LoopClosureWithClutterPairsTrueFeaturesOnly) {
+  std::mt19937_64 rng(21);
+  World world;
+  world.landmarks = landmark_field(Vec2(-3, -3), Vec2(15, 15), 150, 1.0, rng);
+  const auto path = square_path(72, 12);
+  add_clutter(world, path, 0, 48, 15, rng);
+  add_clutter(world, path, 48, 72, 10, rng);
+  const auto [first, second] = two_local_maps(simulate(world, path, 5), 48);
+  const Pairs truth = associate_by_id(first, second);
+  ASSERT_GE(truth.size(), 30u);
+  auto clutter_features = [](const GaussianMap& map) {
+    int count = 0;
+    for (std::int64_t id : map.ids()) count += id >= kClutterIds ? 1 : 0;
+    return count;
+  };
+  ASSERT_GT(clutter_features(first), 5);
+  ASSERT_GT(clutter_features(second), 5);
+
+  const JoinFrame frame(first, second);
+  const JoinAssociationResult result = associate_maps(frame, options_for(GetParam()));
+  EXPECT_EQ(count_wrong(result.pairs, first, second), 0);
+  EXPECT_EQ(count_clutter(result.pairs, first, second), 0);
+  EXPECT_GE(result.pairs.size(), 0.95 * static_cast<double>(truth.size()));
+  EXPECT_GE(result.overlap, static_cast<int>(result.pairs.size()));
+  if (GetParam() == JoinAssociation::Rjc) {
+    EXPECT_GT(result.tries, 0);
+  }
+}
+
+// The second lap repeats the first: every feature of m2 is a landmark of m1.
+TEST_P(JoinAssociationModes, FullOverlapPairsEveryFeature) {
+  std::mt19937_64 rng(22);
+  World world;
+  world.landmarks = landmark_field(Vec2(-3, -3), Vec2(15, 15), 150, 1.0, rng);
+  const auto path = square_path(96, 12);
+  const auto [first, second] = two_local_maps(simulate(world, path, 6), 48);
+  const Pairs truth = associate_by_id(first, second);
+  ASSERT_EQ(static_cast<Index>(truth.size()), second.num_features());
+
+  const JoinAssociationResult result = associate_maps(JoinFrame(first, second), options_for(GetParam()));
+  EXPECT_EQ(count_wrong(result.pairs, first, second), 0);
+  EXPECT_GE(result.pairs.size(), 0.98 * static_cast<double>(truth.size()));
+}
+
+// A stretch without landmarks separates the two maps: nothing may be paired, and RJC has no
+// overlap to draw from.
+TEST_P(JoinAssociationModes, NoOverlapPairsNothing) {
+  std::mt19937_64 rng(23);
+  World world;
+  world.landmarks = landmark_field(Vec2(-3, -3), Vec2(8, 3), 25, 1.0, rng);
+  const auto far = landmark_field(Vec2(16, -3), Vec2(30, 3), 30, 1.0, rng);
+  world.landmarks.insert(world.landmarks.end(), far.begin(), far.end());
+  const auto path = square_path(28, 100);
+  const auto [first, second] = two_local_maps(simulate(world, path, 7), 12);
+  ASSERT_TRUE(associate_by_id(first, second).empty());
+  ASSERT_GT(first.num_features(), 0);
+  ASSERT_GT(second.num_features(), 0);
+
+  const JoinAssociationResult result = associate_maps(JoinFrame(first, second), options_for(GetParam()));
+  EXPECT_TRUE(result.pairs.empty());
+  EXPECT_EQ(result.overlap, 0);
+  EXPECT_EQ(result.tries, 0);
+}
+
+INSTANTIATE_TEST_SUITE_P(Modes, JoinAssociationModes,
+                         ::testing::Values(JoinAssociation::Jcbb, JoinAssociation::Rjc));
+
+TEST(JoinAssociation, RjcIsReproducibleFromItsSeed) {
+  std::mt19937_64 rng(24);
+  World world;
+  world.landmarks = landmark_field(Vec2(-3, -3), Vec2(15, 15), 150, 1.0, rng);
+  const auto path = square_path(72, 12);
+  const auto [first, second] = two_local_maps(simulate(world, path, 8), 48);
+  const JoinFrame frame(first, second);
+  const auto a = associate_maps(frame, options_for(JoinAssociation::Rjc, 1));
+  const auto b = associate_maps(frame, options_for(JoinAssociation::Rjc, 1));
+  EXPECT_EQ(a.pairs, b.pairs);
+  EXPECT_EQ(a.tries, b.tries);
+  EXPECT_EQ(a.overlap, b.overlap);
+  // Another seed draws other samples, and must find true pairs all the same.
+  const auto c = associate_maps(frame, options_for(JoinAssociation::Rjc, 2));
+  EXPECT_EQ(count_wrong(c.pairs, first, second), 0);
+  EXPECT_GE(c.pairs.size(), 0.95 * static_cast<double>(associate_by_id(first, second).size()));
+}
+
+// Maps built by hand: m1's robot estimate is 0.8 m off its true pose with a 1 m standard
+// deviation, so every feature of m2 moved into B1 lands 0.8 m from its landmark, and a
+// feature of m1 (id 99) sits right where m2's first feature lands. Individually that pairing
+// looks best; jointly it contradicts the common offset that all the other pairings share.
+GaussianMap hand_built_map(const Vec3& robot, const Mat3& robot_covariance,
+                           const std::vector<Vec2>& features, const std::vector<std::int64_t>& ids,
+                           double feature_sigma) {
+  GaussianMap map;
+  for (std::size_t k = 0; k < features.size(); ++k) map.append_feature(features[k], ids[k]);
+  map.x().head<3>() = robot;
+  map.P().setZero();
+  map.P().topLeftCorner<3, 3>() = robot_covariance;
+  map.P().bottomRightCorner(map.dim() - 3, map.dim() - 3).diagonal().setConstant(feature_sigma * feature_sigma);
+  return map;
+}
+
+class MovedSecondModel : public PairingModel {
+ public:
+  explicit MovedSecondModel(const JoinFrame& frame) : frame_(frame) {}
+  Vec2 innovation(const Pairing& p) const override {
+    return frame_.moved_second_feature(p.measurement) - frame_.first_feature(p.feature);
+  }
+  Mat2 covariance(const Pairing& a, const Pairing& b) const override {
+    return frame_.constraint_covariance(a.feature, a.measurement, b.feature, b.measurement);
+  }
+
+ private:
+  const JoinFrame& frame_;
+};
+
+TEST(JoinAssociation, NearestNeighbourPairsWronglyWhereJointCompatibilityDoesNot) {
+  const std::vector<Vec2> landmarks = {{3, 0}, {5, 2}, {2, 4}, {6, -2}, {0, 3}, {4, 5}};
+  const Vec2 offset(0.8, 0.0);  // m1's robot estimate minus its true pose
+  std::vector<Vec2> first_features = landmarks;
+  std::vector<std::int64_t> first_ids = {0, 1, 2, 3, 4, 5};
+  first_features.push_back(landmarks[0] + offset + Vec2(0.02, 0.0));
+  first_ids.push_back(99);
+  const GaussianMap first = hand_built_map(Vec3(offset.x(), offset.y(), 0.0),
+                                           Vec3(1.0, 1.0, 0.0).asDiagonal(), first_features,
+                                           first_ids, 0.05);
+  // m2's base is the true pose of R1, the origin here.
+  const GaussianMap second = hand_built_map(Vec3(1, 0, 0), Mat3::Zero(), landmarks,
+                                            {0, 1, 2, 3, 4, 5}, 0.05);
+  const JoinFrame frame(first, second);
+  const MovedSecondModel model(frame);
+
+  CandidateLists all(static_cast<std::size_t>(second.num_features()));
+  for (auto& list : all) {
+    for (int i = 0; i < static_cast<int>(first.num_features()); ++i) list.push_back(i);
+  }
+  const std::vector<int> nearest = nearest_neighbour(all, model, 0.99);
+  ASSERT_EQ(nearest[0], 6);  // id 99: the decoy
+
+  for (JoinAssociation association : {JoinAssociation::Rjc, JoinAssociation::Jcbb}) {
+    const auto result = associate_maps(frame, options_for(association));
+    EXPECT_EQ(count_wrong(result.pairs, first, second), 0);
+    EXPECT_EQ(result.pairs.size(), landmarks.size());
+    if (association == JoinAssociation::Rjc) {
+      EXPECT_GT(result.tries, 0);  // the overlap (6) exceeds b: the randomized path ran
+    }
+  }
+}
+
+}  // namespace
+}  // namespace dcslam
