@@ -155,32 +155,39 @@ def plot(curves: Dict[str, np.ndarray], summary: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     step = curves["step"]
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 8), sharex=True)
+    fig, (top, middle, bottom) = plt.subplots(
+        3, 1, figsize=(8, 11), sharex=True, gridspec_kw={"height_ratios": [3, 3, 2]}
+    )
     for name in FILTERS:
-        top.plot(step, curves[f"{name}_ci_heading"], color=COLORS[name], lw=2,
-                 label=f"{LABELS[name]}, heading")
-        top.plot(step, curves[f"{name}_ci_pose"], color=COLORS[name], lw=1, ls=":",
-                 label=f"{LABELS[name]}, pose (3 dof)")
+        top.plot(step, curves[f"{name}_ci_heading"], color=COLORS[name], lw=2, label=LABELS[name])
     top.axhline(1.0, color="black", lw=1, ls="--", label="CI = 1 (consistency limit)")
-    top.set_ylabel("mean consistency index")
+    top.set_ylabel("mean CI, robot heading")
     top.set_title(f"Straight trajectory, {summary['runs']} Monte Carlo runs, known association, "
                   f"D&C local maps of {summary['local_map_features']} features", fontsize=10)
     top.legend(fontsize=8, loc="upper left")
     top.grid(alpha=0.3)
 
     for name in FILTERS:
-        bottom.plot(step, np.degrees(curves[f"{name}_abs_heading_error"]), color=COLORS[name], lw=2,
+        middle.plot(step, np.degrees(curves[f"{name}_abs_heading_error"]), color=COLORS[name], lw=2,
                     label=f"{LABELS[name]}, mean |heading error|")
-        bottom.plot(step, np.degrees(2 * curves[f"{name}_heading_sigma"]), color=COLORS[name], lw=1,
+        middle.plot(step, np.degrees(2 * curves[f"{name}_heading_sigma"]), color=COLORS[name], lw=1,
                     ls="--", label=f"{LABELS[name]}, 2σ computed (with noise)")
         ideal = curves[f"{name}_ideal_heading_sigma"]
         if np.all(np.isfinite(ideal)):
-            bottom.plot(step, np.degrees(2 * ideal), color=COLORS[name], lw=1, ls=":",
+            middle.plot(step, np.degrees(2 * ideal), color=COLORS[name], lw=1, ls=":",
                         label=f"{LABELS[name]}, 2σ theoretical (without noise)")
-    bottom.set_xlabel("step")
-    bottom.set_ylabel("robot heading (deg)")
+    middle.set_ylabel("robot heading (deg)")
+    middle.legend(fontsize=8, loc="upper left")
+    middle.grid(alpha=0.3)
+
+    # The pose CI spans two orders of magnitude between the filters: a log axis keeps both legible.
+    for name in FILTERS:
+        bottom.semilogy(step, curves[f"{name}_ci_pose"], color=COLORS[name], lw=2, label=LABELS[name])
+    bottom.axhline(1.0, color="black", lw=1, ls="--", label="CI = 1")
+    bottom.set_ylabel("mean CI, robot pose (3 dof)")
     bottom.legend(fontsize=8, loc="upper left")
-    bottom.grid(alpha=0.3)
+    bottom.grid(alpha=0.3, which="both")
+    bottom.set_xlabel("step")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)

@@ -29,7 +29,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Dict, List, NamedTuple, Optional
 
 import numpy as np
 
@@ -60,9 +60,14 @@ def run_bench(bench: Path, steps: int, trajectories: List[str], out_dir: Path, s
     return paths
 
 
-def load_sim_runs(paths: List[Path]) -> Dict[str, Dict[str, np.ndarray]]:
-    """{trajectory: {"ekf" | "dc_immediate" | "dc_amortized": per-step seconds}}."""
-    curves: Dict[str, Dict[str, np.ndarray]] = {}
+class Timing(NamedTuple):
+    step_seconds: np.ndarray
+    total_seconds: float  # the steps plus the final map (D&C: the last stack joins), as timed by the bench
+
+
+def load_sim_runs(paths: List[Path]) -> Dict[str, Dict[str, Timing]]:
+    """{trajectory: {"ekf" | "dc_immediate" | "dc_amortized": Timing}}."""
+    curves: Dict[str, Dict[str, Timing]] = {}
     for path in paths:
         document = json.loads(Path(path).read_text())
         if document.get("command") != "sim":
@@ -71,11 +76,12 @@ def load_sim_runs(paths: List[Path]) -> Dict[str, Dict[str, np.ndarray]]:
         joins = bench_option(document, "joins")
         for run in document["runs"]:
             key = "ekf" if run["filter"] == "ekf" else f"dc_{joins}"
-            curves.setdefault(trajectory, {})[key] = np.asarray(run["step_seconds"], dtype=float)
+            timing = Timing(np.asarray(run["step_seconds"], dtype=float), float(run["total_seconds"]))
+            curves.setdefault(trajectory, {})[key] = timing
     return curves
 
 
-def plot_timings(curves: Dict[str, Dict[str, np.ndarray]], path: Path) -> None:
+def plot_timings(curves: Dict[str, Dict[str, Timing]], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -95,9 +101,13 @@ def plot_timings(curves: Dict[str, Dict[str, np.ndarray]], path: Path) -> None:
             for key, label, color in (("ekf", "EKF", COLORS["ekf"]), (dc_key, dc_label, COLORS["dc"])):
                 if key not in runs:
                     continue
-                seconds = np.cumsum(runs[key]) if cumulative else runs[key]
+                step_seconds = runs[key].step_seconds
+                seconds = np.cumsum(step_seconds) if cumulative else step_seconds
                 steps = np.arange(1, len(seconds) + 1)
                 ax.plot(steps, seconds, color=color, lw=1.5 if cumulative else 0.8, label=label)
+                if cumulative:
+                    ax.plot(steps[-1], runs[key].total_seconds, "o", color=color, ms=5,
+                            label=f"{label} with final map")
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8, loc="upper left")
             if column == 0:
@@ -114,10 +124,11 @@ def plot_timings(curves: Dict[str, Dict[str, np.ndarray]], path: Path) -> None:
     plt.close(fig)
 
 
-def print_summary(curves: Dict[str, Dict[str, np.ndarray]]) -> None:
+def print_summary(curves: Dict[str, Dict[str, Timing]]) -> None:
     for trajectory, runs in curves.items():
-        parts = [f"{key} total {seconds.sum():.3f} s, worst step {seconds.max() * 1e3:.2f} ms"
-                 for key, seconds in sorted(runs.items())]
+        parts = [f"{key} steps {t.step_seconds.sum():.3f} s (total with final map {t.total_seconds:.3f} s), "
+                 f"worst step {t.step_seconds.max() * 1e3:.2f} ms"
+                 for key, t in sorted(runs.items())]
         print(f"{trajectory}: " + "; ".join(parts))
 
 
