@@ -109,7 +109,8 @@ def plot_timings(curves: Dict[str, Dict[str, Timing]], path: Path) -> None:
                     ax.plot(steps[-1], runs[key].total_seconds, "o", color=color, ms=5,
                             label=f"{label} with final map")
             ax.grid(alpha=0.3)
-            ax.legend(fontsize=8, loc="upper left")
+            if ax.lines:
+                ax.legend(fontsize=8, loc="upper left")
             if column == 0:
                 ax.set_ylabel(ylabel)
             if row == 0:
