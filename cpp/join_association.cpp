@@ -87,8 +87,18 @@ JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& 
   candidates = individually_compatible(candidates, model, pruning_confidence);
   for (const auto& list : candidates) result.overlap += list.empty() ? 0 : 1;
 
+  // RJC is for large overlaps. On a small one, JCBB with the star node is exact and cheap;
+  // and where every RJC try fails (no b-sample of the overlap was all-good: on real data far
+  // fewer than p_good of the overlap features have a partner), JCBB decides instead, bounded
+  // by its node limit.
+  const JcbbOptions jcbb_options = [&] {
+    JcbbOptions o;
+    o.confidence = options.gate_confidence;
+    return o;
+  }();
   std::vector<int> feature_of;
-  if (options.association == JoinAssociation::Rjc) {
+  const bool small_overlap = result.overlap <= 3 * options.rjc_b;
+  if (options.association == JoinAssociation::Rjc && !small_overlap) {
     RjcOptions rjc_options;
     rjc_options.b = options.rjc_b;
     rjc_options.p_good = options.rjc_p_good;
@@ -98,9 +108,8 @@ JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& 
     RjcResult rjc_result = rjc(candidates, model, rjc_options);
     result.tries = rjc_result.tries;
     feature_of = std::move(rjc_result.feature_of);
+    if (rjc_result.pairings == 0) feature_of = jcbb(candidates, model, jcbb_options).feature_of;
   } else {
-    JcbbOptions jcbb_options;
-    jcbb_options.confidence = options.gate_confidence;
     feature_of = jcbb(candidates, model, jcbb_options).feature_of;
   }
   for (Index j = 0; j < n2; ++j) {
