@@ -240,7 +240,8 @@ TEST_P(DcSlamJoinAssociation, PairsTrueFeaturesOnly) {
     EXPECT_GE(joins[k].report.overlap, joins[k].report.pairings);
     pairings += joins[k].report.pairings;
     true_pairings += reference_joins[k].report.pairings;
-    if (GetParam() == JoinAssociation::Rjc && joins[k].report.overlap > 4) {
+    // RJC's randomized path runs on overlaps larger than 3b (smaller ones go to JCBB).
+    if (GetParam() == JoinAssociation::Rjc && joins[k].report.overlap > 12) {
       EXPECT_GT(joins[k].report.tries, 0);
     }
   }
