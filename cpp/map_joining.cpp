@@ -104,14 +104,41 @@ MapJoin::MapJoin(std::shared_ptr<const GaussianMap> first,
   report_.features_second = second_->num_features();
 }
 
+// A written element of the result costs a write plus a dot product of length 3 + 2r; one
+// unit of work is about eight multiply-adds, so budgets mean time across joins of any r.
+std::int64_t MapJoin::fill_element_cost() const {
+  return 1 + (3 + 2 * static_cast<std::int64_t>(pairs_.size())) / 8;
+}
+
+// A row of the triangular solve costs about (2r)^2 / 2 multiply-adds.
+std::int64_t MapJoin::solve_row_cost() const {
+  const auto r = static_cast<std::int64_t>(pairs_.size());
+  return std::max<std::int64_t>(1, r * r / 4);
+}
+
 std::int64_t MapJoin::remaining_work() const {
   if (phase_ == Phase::Done) return 0;
-  // The fill writes the lower triangle of the columns not yet done.
+  // The fill writes the lower triangle of the columns not yet done; the solve (once the
+  // pairs are known) costs about r units a row.
   const Index out_dim = phase_ == Phase::Fill
                             ? result_.dim()
                             : first_->dim() + second_->dim() - GaussianMap::kRobotDim;
   const auto left = static_cast<std::int64_t>(out_dim - next_out_col_);
-  return left * (left + 1) / 2;
+  std::int64_t work = left * (left + 1) / 2 * fill_element_cost();
+  const Index solve_rows = first_ ? first_->dim() - 3 + second_->dim() : 0;
+  switch (phase_) {
+    case Phase::Associate: {
+      // Before association r is only bounded by the smaller map.
+      const std::int64_t r = std::min(first_->num_features(), second_->num_features());
+      return left * (left + 1) / 2 * (1 + (3 + 2 * r) / 8) + solve_rows * std::max<std::int64_t>(1, r * r / 4);
+    }
+    case Phase::Constrain:
+      return work + static_cast<std::int64_t>(solve_rows) * solve_row_cost();
+    case Phase::Solve:
+      return work + static_cast<std::int64_t>(gain_.rows() - next_solve_row_) * solve_row_cost();
+    default:
+      return work;
+  }
 }
 
 std::int64_t MapJoin::advance(std::int64_t budget) {
@@ -124,17 +151,25 @@ std::int64_t MapJoin::advance(std::int64_t budget) {
         associate();
         const std::int64_t units = first_->num_features() + second_->num_features();
         spent += units;
-        phase_ = Phase::Prepare;
+        phase_ = Phase::Constrain;
         break;
       }
-      case Phase::Prepare: {
-        prepare();
-        const std::int64_t units =
-            static_cast<std::int64_t>(result_.dim()) * (2 * static_cast<Index>(pairs_.size()) + 1);
-        spent += units;
+      case Phase::Constrain: {
+        constrain();
+        const std::int64_t r = static_cast<std::int64_t>(pairs_.size());
+        spent += static_cast<std::int64_t>(gain_.rows()) + r * r;
+        phase_ = Phase::Solve;
+        break;
+      }
+      case Phase::Solve:
+        spent += solve_next_rows();
+        if (next_solve_row_ == gain_.rows()) phase_ = Phase::Assemble;
+        break;
+      case Phase::Assemble:
+        assemble();
+        spent += result_.dim();
         phase_ = Phase::Fill;
         break;
-      }
       case Phase::Fill:
         spent += fill_next_block();
         if (next_out_col_ == result_.dim()) {
@@ -183,7 +218,8 @@ void MapJoin::associate() {
   }
 }
 
-void MapJoin::prepare() {
+// Kept elements of m2 and the constraints' P H', S = L L' and L^-1 h (O(n r + r^3)).
+void MapJoin::constrain() {
   const GaussianMap& m1 = *first_;
   const GaussianMap& m2 = *second_;
   const JoinFrame frame(m1, m2);
@@ -200,23 +236,26 @@ void MapJoin::prepare() {
   std::vector<char> matched(static_cast<std::size_t>(n2), 0);
   for (const auto& pair : pairs_) matched[static_cast<std::size_t>(pair.second)] = 1;
   second_kept_rows_ = {0, 1, 2};
-  std::vector<std::int64_t> kept_ids;
+  kept_ids_.clear();
   for (Index j = 0; j < n2; ++j) {
     if (matched[static_cast<std::size_t>(j)]) continue;
     second_kept_rows_.push_back(GaussianMap::feature_offset(j));
     second_kept_rows_.push_back(GaussianMap::feature_offset(j) + 1);
-    kept_ids.push_back(m2.ids()[static_cast<std::size_t>(j)]);
+    kept_ids_.push_back(m2.ids()[static_cast<std::size_t>(j)]);
   }
   const Index d2k = static_cast<Index>(second_kept_rows_.size());
-  Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_kept(d2k, 3);
+  J_R_kept_.resize(d2k, 3);
   for (Index a = 0; a < d2k; ++a) {
-    J_R_kept.row(a) = J_R.row(second_kept_rows_[static_cast<std::size_t>(a)]);
+    J_R_kept_.row(a) = J_R.row(second_kept_rows_[static_cast<std::size_t>(a)]);
   }
 
-  // P H' for the constraints f_i - f'_j, on m1's feature rows and all of m2's rows.
+  // P H' for the constraints f_i - f'_j: rows [F1 (2 n1); all of m2 (d2)].
   const auto A1 = P1.block(3, 0, 2 * n1, 3);  // cov(F1, R1)
-  Eigen::MatrixXd PHt_first(2 * n1, 2 * r), PHt_second(d2, 2 * r);
+  gain_.resize(2 * n1 + d2, 2 * r);
+  auto PHt_first = gain_.topRows(2 * n1);
+  auto PHt_second = gain_.bottomRows(d2);
   Eigen::VectorXd h(2 * r);
+  Eigen::MatrixXd second_col(d2, 2);
   for (Index k = 0; k < r; ++k) {
     const auto [i, j] = pairs_[static_cast<std::size_t>(k)];
     const Index oi = GaussianMap::feature_offset(i), oj = GaussianMap::feature_offset(j);
@@ -224,7 +263,7 @@ void MapJoin::prepare() {
     PHt_first.middleCols<2>(2 * k).noalias() = P1.block(3, oi, 2 * n1, 2);
     PHt_first.middleCols<2>(2 * k).noalias() -= A1 * J_j.transpose();
     // cov(m2 rows, f'_j) = J_R P1_RR J_j' + J_2 P2[:, f_j] Rot'.
-    Eigen::MatrixXd second_col = P2.middleCols(oj, 2) * rotation_.transpose();
+    second_col.noalias() = P2.middleCols(oj, 2) * rotation_.transpose();
     rotate_second_rows(second_col, 0);
     PHt_second.middleCols<2>(2 * k).noalias() = J_R * P1.block(0, oi, 3, 2);
     PHt_second.middleCols<2>(2 * k).noalias() -= J_R * (P1_RR * J_j.transpose());
@@ -244,20 +283,41 @@ void MapJoin::prepare() {
         "map join: the covariance of the matched-pair constraints is not positive definite "
         "(two matched features are perfectly correlated)");
   }
-  // W = P H' L^-T, so that P_out = P - W W' and x_out = x - W L^-1 h.
-  Eigen::MatrixXd W_first = PHt_first;
-  Eigen::MatrixXd W_second = PHt_second;
-  Eigen::VectorXd v = h;
-  if (r > 0) {
-    const auto L = llt.matrixL();
-    L.transpose().solveInPlace<Eigen::OnTheRight>(W_first);
-    L.transpose().solveInPlace<Eigen::OnTheRight>(W_second);
-    L.solveInPlace(v);
+  constraint_factor_ = llt.matrixL();
+  whitened_h_ = h;
+  if (r > 0) constraint_factor_.triangularView<Eigen::Lower>().solveInPlace(whitened_h_);
+  next_solve_row_ = 0;
+}
+
+// W = P H' L^-T, in place, one block of rows at a time (rows are independent).
+std::int64_t MapJoin::solve_next_rows() {
+  const Index r2 = constraint_factor_.rows();
+  const Index rows = std::min<Index>(4 * options_.block_columns, gain_.rows() - next_solve_row_);
+  if (r2 > 0) {
+    auto block = gain_.middleRows(next_solve_row_, rows);
+    constraint_factor_.triangularView<Eigen::Lower>().transpose().solveInPlace<Eigen::OnTheRight>(block);
   }
+  next_solve_row_ += rows;
+  return static_cast<std::int64_t>(rows) * solve_row_cost();
+}
+
+// The result's means and the low-rank factors of the fill (O(n r)).
+void MapJoin::assemble() {
+  const GaussianMap& m1 = *first_;
+  const GaussianMap& m2 = *second_;
+  const JoinFrame frame(m1, m2);
+  const Index n1 = m1.num_features();
+  const Index r = static_cast<Index>(pairs_.size());
+  const Index d2k = static_cast<Index>(second_kept_rows_.size());
+  const auto P1 = m1.P();
+  const Mat3 P1_RR = P1.topLeftCorner<3, 3>();
+  const auto A1 = P1.block(3, 0, 2 * n1, 3);  // cov(F1, R1)
+  const auto W_first = gain_.topRows(2 * n1);
   Eigen::MatrixXd W_second_kept(d2k, 2 * r);
   for (Index a = 0; a < d2k; ++a) {
-    W_second_kept.row(a) = W_second.row(second_kept_rows_[static_cast<std::size_t>(a)]);
+    W_second_kept.row(a) = gain_.row(2 * n1 + second_kept_rows_[static_cast<std::size_t>(a)]);
   }
+  const Eigen::VectorXd& v = whitened_h_;
 
   // The result: [R2'; F1; F2' unmatched], means corrected by the constraints.
   const Index n2k = (d2k - 3) / 2;
@@ -278,9 +338,9 @@ void MapJoin::prepare() {
   const Index k = 2 * r;
   left_.resize(out_dim, 6 + k);
   const auto put_second_rows = [&](Index out_row, Index local_row, Index rows) {
-    left_.block(out_row, 0, rows, 3) = J_R_kept.middleRows(local_row, rows) * P1_RR;
+    left_.block(out_row, 0, rows, 3) = J_R_kept_.middleRows(local_row, rows) * P1_RR;
     left_.block(out_row, 3, rows, k) = W_second_kept.middleRows(local_row, rows);
-    left_.block(out_row, 3 + k, rows, 3) = J_R_kept.middleRows(local_row, rows);
+    left_.block(out_row, 3 + k, rows, 3) = J_R_kept_.middleRows(local_row, rows);
   };
   put_second_rows(0, 0, 3);
   put_second_rows(3 + 2 * n1, 3, d2k - 3);
@@ -288,13 +348,14 @@ void MapJoin::prepare() {
   left_.block(3, 3, 2 * n1, k) = W_first;
   left_.block(3, 3 + k, 2 * n1, 3).setZero();
   right_second_.resize(d2k, 3 + k);
-  right_second_ << J_R_kept, -W_second_kept;
+  right_second_ << J_R_kept_, -W_second_kept;
   right_first_.resize(2 * n1, 3 + k);
   right_first_ << -W_first, A1;
+  gain_ = Eigen::MatrixXd();
 
   auto& ids = result_.ids();
   std::copy(m1.ids().begin(), m1.ids().end(), ids.begin());
-  std::copy(kept_ids.begin(), kept_ids.end(), ids.begin() + static_cast<std::ptrdiff_t>(n1));
+  std::copy(kept_ids_.begin(), kept_ids_.end(), ids.begin() + static_cast<std::ptrdiff_t>(n1));
   report_.features_joined = result_.num_features();
   next_out_col_ = 0;
 }
@@ -393,7 +454,7 @@ std::int64_t MapJoin::fill_next_block() {
     out.block(0, 3, 3, out_dim - 3) = out.block(3, 0, out_dim - 3, 3).transpose();
   }
   next_out_col_ += width;
-  return static_cast<std::int64_t>(out_dim - col) * width;
+  return static_cast<std::int64_t>(out_dim - col) * width * fill_element_cost();
 }
 
 void MapJoin::release_inputs() {

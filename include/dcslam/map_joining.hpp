@@ -111,9 +111,11 @@ class MapJoin {
   std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids() const;
 
  private:
-  enum class Phase { Associate, Prepare, Fill, Done };
+  enum class Phase { Associate, Constrain, Solve, Assemble, Fill, Done };
   void associate();
-  void prepare();
+  void constrain();
+  std::int64_t solve_next_rows();
+  void assemble();
   std::int64_t fill_next_block();
   // Writes J_2 P2 J_2' for m2's kept elements, local rows [row_begin, row_begin + rows) x
   // local columns [col_begin, col_begin + width), into the output at (out_row, out_col).
@@ -124,6 +126,8 @@ class MapJoin {
   void rotate_second_rows(Eigen::Ref<Eigen::MatrixXd> block, Eigen::Index local_begin) const;
   void rotate_second_columns(Eigen::Ref<Eigen::MatrixXd> block, Eigen::Index local_begin) const;
   void release_inputs();
+  std::int64_t fill_element_cost() const;
+  std::int64_t solve_row_cost() const;
 
   std::shared_ptr<const GaussianMap> first_, second_;
   JoinOptions options_;
@@ -138,6 +142,12 @@ class MapJoin {
   //   columns of m1's features:      L = [W | J_R or 0],               N = [-W | cov(F1, R1)].
   // left_ holds [JP | W | J] in output row order; right_* hold N for each column kind.
   std::vector<Eigen::Index> second_kept_rows_;  // m2's robot rows, then unmatched features
+  std::vector<std::int64_t> kept_ids_;
+  Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_kept_;  // rows of J_R for the kept elements
+  Eigen::MatrixXd gain_;               // P H' (rows: F1, then all of m2), then W in place
+  Eigen::MatrixXd constraint_factor_;  // L, S = L L'
+  Eigen::VectorXd whitened_h_;         // L^-1 h
+  Eigen::Index next_solve_row_ = 0;
   Eigen::MatrixXd left_;
   Eigen::MatrixXd right_second_;
   Eigen::MatrixXd right_first_;
