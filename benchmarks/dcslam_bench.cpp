@@ -352,7 +352,7 @@ std::vector<RunResult> run_filters(const Args& args, const SlamConfig& config,
 }
 
 void print_result(const RunResult& r) {
-  std::printf("  %-4s features %6lld  total %9.3f s  mean step %8.5f s  worst step %8.4f s  "
+  std::printf("  %-4s features %6lld  total %9.3f s  mean step %9.6f s  worst step %8.4f s  "
               "peak RSS growth %8.1f MB\n",
               r.filter.c_str(), static_cast<long long>(r.features), r.total_seconds,
               r.mean_step_seconds, r.worst_step_seconds,
