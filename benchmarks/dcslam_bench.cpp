@@ -1,24 +1,32 @@
 // dcslam_bench: the native benchmark (no Python needed). Runs the EKF and/or D&C SLAM on the
-// paper's simulator and reports total time, worst step, map size, joins and peak memory, as
-// ratios measured in one run (DESIGN.md §9). Usage: dcslam_bench --help.
+// paper's simulator, on Victoria Park and on iSAM/GTSAM 2D files, and reports total time,
+// worst and mean step, map size, joins, association counts and peak memory, as ratios
+// measured in one run (DESIGN.md §9); it also times a join's data association against map
+// size. Usage: dcslam_bench --help.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <iostream>
 #include <map>
 #include <memory>
-#include <numeric>
+#include <optional>
 #include <sstream>
 #include <string>
+#include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
+#include "dcslam/association_bench.hpp"
 #include "dcslam/dc_slam.hpp"
 #include "dcslam/ekf_slam.hpp"
 #include "dcslam/errors.hpp"
+#include "dcslam/isam2d.hpp"
 #include "dcslam/simulator.hpp"
+#include "dcslam/victoria_park.hpp"
 
 namespace {
 
@@ -27,20 +35,42 @@ using Clock = std::chrono::steady_clock;
 
 const char* kUsage = R"(dcslam_bench: native benchmarks of EKF and D&C SLAM.
 
-  dcslam_bench sim     [options]   one simulated run, EKF and/or D&C on the same data
-  dcslam_bench scaling [options]   several runs of growing size; fitted exponents of time vs n
+  dcslam_bench sim         [options]   one simulated run, EKF and/or D&C on the same data
+  dcslam_bench scaling     [options]   several runs of growing size; fitted exponents of time vs n
+  dcslam_bench vp          [options]   Victoria Park, configured as Python's vp.slam_config()
+                                       (range-bearing from the laser offset, JCBB, RJC joins)
+  dcslam_bench isam FILE   [options]   an iSAM/GTSAM 2D file, point observations, known ids
+  dcslam_bench association [options]   cost of a join's association vs map size: RJC, JCBB over
+                                       the whole overlap, all-pairs individual compatibility
 
-Options (defaults in brackets):
+Options of sim and scaling (defaults in brackets):
   --trajectory straight|loop|lawn_mowing|snail   [snail]
   --steps N            simulated steps (sim)                       [500]
   --sizes a,b,...      steps of each run (scaling)                 [100,200,400,800]
+  --association known|nn|jcbb  (local maps; joins use known|rjc)   [known]
+                       with nn|jcbb, sim also scores the pairings against the true ids
+  --clutter F          fraction of spurious measurements            [0]
+
+Options of sim, scaling, vp and isam:
   --filter ekf|dc|both                                              [both]
   --joins immediate|amortized|threaded                              [amortized]
   --local-map-features P                                           [30]
-  --association known|nn|jcbb  (local maps; joins use known|rjc)   [known]
-  --clutter F          fraction of spurious measurements            [0]
   --seed S                                                          [0]
   --json FILE          write per-step times and totals as JSON
+
+Options of vp:
+  --data-dir DIR       folder of the four vp_*.csv.gz files
+                       [)" DCSLAM_SOURCE_DIR R"(/python/dcslam/data/victoria_park]
+                       noise and max range: VictoriaParkOptions' defaults (printed)
+
+Options of association:
+  --sizes a,b,...      features of both maps together              [1000,2000,5000,10000]
+  --overlap K          features of the second map re-observed      [200]
+  --repetitions R      timings are the median of R runs            [3]
+  --seed S                                                          [1]
+  --json FILE          write the table as JSON
+
+A missing or malformed data file prints the reader's message and exits with status 2.
 )";
 
 using Args = std::map<std::string, std::string>;
@@ -62,53 +92,136 @@ std::string get(const Args& args, const std::string& key, const std::string& fal
   return it == args.end() ? fallback : it->second;
 }
 
-long number(const Args& args, const std::string& key, long fallback) {
-  const std::string text = get(args, key, std::to_string(fallback));
+long parse_integer(const std::string& text, const std::string& key) {
   try {
     std::size_t used = 0;
     const long value = std::stol(text, &used);
     if (used == text.size()) return value;
   } catch (const std::exception&) {
   }
-  throw InvalidArgument("dcslam_bench: --" + key + " expects an integer, got '" + text + "'");
+  throw InvalidArgument("dcslam_bench: --" + key + " expects integers, got '" + text + "'");
 }
 
-// Peak resident memory of this process so far (VmHWM), in bytes.
-std::int64_t peak_rss_bytes() {
+long number(const Args& args, const std::string& key, long fallback) {
+  return parse_integer(get(args, key, std::to_string(fallback)), key);
+}
+
+// A comma-separated list of integers, e.g. --sizes 100,200,400.
+std::vector<long> number_list(const Args& args, const std::string& key, const std::string& fallback) {
+  std::vector<long> values;
+  std::stringstream list(get(args, key, fallback));
+  for (std::string item; std::getline(list, item, ',');) values.push_back(parse_integer(item, key));
+  return values;
+}
+
+// A field of /proc/self/status given in kB ("VmRSS", "VmHWM"), in bytes; -1 if absent.
+std::int64_t status_bytes(const std::string& field) {
   std::ifstream status("/proc/self/status");
+  const std::string prefix = field + ":";
   std::string line;
   while (std::getline(status, line)) {
-    if (line.rfind("VmHWM:", 0) == 0) return std::stoll(line.substr(6)) * 1024;
+    if (line.rfind(prefix, 0) == 0) return std::stoll(line.substr(prefix.size())) * 1024;
   }
   return -1;
 }
 
-std::vector<SlamStep> to_steps(const Simulation& sim, bool with_ids) {
-  std::vector<SlamStep> steps(static_cast<std::size_t>(sim.config.steps));
+// Resets the peak-RSS mark to the current RSS (Linux >= 4.0), so that the second filter of a
+// run is not measured against the first one's peak. On older kernels the write is ignored and
+// the second filter's growth is only what it adds above the first one's peak.
+void reset_peak_rss() { std::ofstream("/proc/self/clear_refs") << "5"; }
+
+using RowMatrix4 = Eigen::Matrix<double, Eigen::Dynamic, 4, Eigen::RowMajor>;
+
+// Steps from flat arrays laid out as the simulator and the loaders give them: step k predicts
+// with u.row(k) and covariance_of_step(k), then updates with measurement rows
+// [offsets[k], offsets[k + 1]) (z, row-major 2x2 R, and ids when given).
+std::vector<SlamStep> steps_from_arrays(const RowMatrix3& u,
+                                        const std::function<Mat3(Eigen::Index)>& covariance_of_step,
+                                        const std::vector<std::int64_t>& offsets,
+                                        const RowMatrix2& z, const RowMatrix4& R,
+                                        const std::vector<std::int64_t>* landmark_ids) {
+  std::vector<SlamStep> steps(static_cast<std::size_t>(u.rows()));
   for (std::size_t k = 0; k < steps.size(); ++k) {
     SlamStep& step = steps[k];
-    step.u = sim.odometry.row(static_cast<Eigen::Index>(k)).transpose();
-    step.Q = sim.odometry_covariance;
-    const std::int64_t begin = sim.step_offsets[k], end = sim.step_offsets[k + 1];
-    step.z = sim.measurements.middleRows(begin, end - begin);
+    const auto row = static_cast<Eigen::Index>(k);
+    step.u = u.row(row).transpose();
+    step.Q = covariance_of_step(row);
+    const std::int64_t begin = offsets[k], end = offsets[k + 1];
+    step.z = z.middleRows(begin, end - begin);
     for (std::int64_t i = begin; i < end; ++i) {
-      Mat2 R;
-      R << sim.measurement_covariances(i, 0), sim.measurement_covariances(i, 1),
-          sim.measurement_covariances(i, 2), sim.measurement_covariances(i, 3);
-      step.R.push_back(R);
-      if (with_ids) step.landmark_ids.push_back(sim.true_ids[static_cast<std::size_t>(i)]);
+      step.R.push_back(Eigen::Map<const Eigen::Matrix<double, 2, 2, Eigen::RowMajor>>(R.row(i).data()));
+      if (landmark_ids) step.landmark_ids.push_back((*landmark_ids)[static_cast<std::size_t>(i)]);
     }
-    step.has_landmark_ids = with_ids;
+    step.has_landmark_ids = landmark_ids != nullptr;
   }
   return steps;
+}
+
+// Row k of an (n, 9) array of row-major 3x3 covariances.
+std::function<Mat3(Eigen::Index)> covariance_rows(const Eigen::Matrix<double, Eigen::Dynamic, 9, Eigen::RowMajor>& Q) {
+  return [&Q](Eigen::Index k) {
+    return Mat3(Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(Q.row(k).data()));
+  };
+}
+
+// How the pairings of a run with unknown ids compare with the simulator's truth.
+struct PairingScore {
+  std::int64_t paired = 0;             // measurements that went to a feature already mapped
+  std::int64_t correctly_paired = 0;   // ... whose feature stands for the measured landmark
+  std::int64_t revisits = 0;           // measurements of a landmark the map already held
+  double precision() const { return paired ? static_cast<double>(correctly_paired) / paired : 0.0; }
+  double recall() const { return revisits ? static_cast<double>(correctly_paired) / revisits : 0.0; }
+};
+
+// Scores on the final map: each measurement's returned id is resolved to the feature holding
+// it now (D&C merges features at joins, so pairings made by joins count), and each feature
+// stands for the true landmark most of its measurements came from. Measurements are then
+// replayed in order: one is paired when its feature already had a measurement, and a revisit
+// when an earlier measurement had mapped a feature standing for its landmark. Clutter
+// (true id -1) is never correct; measurements whose feature was removed count as unpaired.
+PairingScore score_pairings(const SlamFilter& slam, const std::vector<std::int64_t>& returned_ids,
+                            const std::vector<std::int64_t>& true_ids) {
+  const std::vector<std::int64_t> features = slam.resolve(returned_ids);
+  std::unordered_map<std::int64_t, std::map<std::int64_t, std::int64_t>> votes;
+  for (std::size_t i = 0; i < features.size(); ++i) {
+    if (features[i] >= 0 && true_ids[i] >= 0) ++votes[features[i]][true_ids[i]];
+  }
+  std::unordered_map<std::int64_t, std::int64_t> landmark_of;
+  for (const auto& [feature, counts] : votes) {
+    // std::map order makes ties go to the smaller landmark id, so the score is deterministic.
+    landmark_of[feature] = std::max_element(counts.begin(), counts.end(), [](const auto& a, const auto& b) {
+                             return a.second < b.second;
+                           })->first;
+  }
+  PairingScore score;
+  std::unordered_set<std::int64_t> features_seen, landmarks_mapped;
+  for (std::size_t i = 0; i < features.size(); ++i) {
+    const std::int64_t feature = features[i], landmark = true_ids[i];
+    if (landmark >= 0 && landmarks_mapped.count(landmark)) ++score.revisits;
+    if (feature < 0) continue;
+    const auto label = landmark_of.find(feature);
+    if (features_seen.insert(feature).second) {
+      if (label != landmark_of.end()) landmarks_mapped.insert(label->second);
+      continue;
+    }
+    ++score.paired;
+    if (landmark >= 0 && label != landmark_of.end() && label->second == landmark) ++score.correctly_paired;
+  }
+  return score;
 }
 
 struct RunResult {
   std::string filter;
   double total_seconds = 0.0;
   double worst_step_seconds = 0.0;
+  double mean_step_seconds = 0.0;
+  // Part of the total spent in estimate(): for D&C the final joins of the stack, which run on
+  // copies and so are not among `joins`.
+  double estimate_seconds = 0.0;
   std::int64_t features = 0;
   std::int64_t peak_rss_growth_bytes = 0;
+  std::int64_t paired = 0, new_features = 0, rejected = 0;  // summed over the steps' stats
+  std::optional<PairingScore> score;                        // sim with unknown ids only
   std::vector<double> step_seconds;
   std::vector<std::int64_t> step_features;
   std::vector<JoinEvent> joins;
@@ -130,11 +243,14 @@ double stream_seconds(Eigen::Index dim) {
   return best;
 }
 
+// Runs one filter over `steps`; with `true_ids` (one per measurement, in step order) it also
+// scores the pairings (outside the timed part).
 RunResult run_filter(const std::string& filter, const SlamConfig& config,
-                     const std::vector<SlamStep>& steps) {
+                     const std::vector<SlamStep>& steps, const std::vector<std::int64_t>* true_ids) {
   RunResult result;
   result.filter = filter;
-  const std::int64_t rss_before = peak_rss_bytes();
+  reset_peak_rss();
+  const std::int64_t rss_before = status_bytes("VmRSS");
   std::unique_ptr<SlamFilter> slam;
   if (filter == "ekf") {
     slam = std::make_unique<EkfSlam>(config);
@@ -142,32 +258,37 @@ RunResult run_filter(const std::string& filter, const SlamConfig& config,
     slam = std::make_unique<DCSlam>(config);
   }
   const auto start = Clock::now();
-  run_steps(*slam, steps);
-  Estimate estimate;
-  if (auto* dc = dynamic_cast<DCSlam*>(slam.get())) {
-    // The final map: the stack joined as at the end of Algorithm 2 (counted in the total).
-    dc->finish_joins();
-    estimate = dc->estimate();
-    result.joins = dc->joins();
-  } else {
-    estimate = slam->estimate();
-  }
+  const std::vector<std::vector<std::int64_t>> returned_ids = run_steps(*slam, steps);
+  // The final map: for D&C the stack joined as at the end of Algorithm 2 (counted in the total).
+  auto* dc = dynamic_cast<DCSlam*>(slam.get());
+  if (dc) dc->finish_joins();
+  const auto estimate_start = Clock::now();
+  const Estimate estimate = slam->estimate();
+  result.estimate_seconds = std::chrono::duration<double>(Clock::now() - estimate_start).count();
+  if (dc) result.joins = dc->joins();
   result.total_seconds = std::chrono::duration<double>(Clock::now() - start).count();
-  result.peak_rss_growth_bytes = peak_rss_bytes() - rss_before;
+  result.peak_rss_growth_bytes = status_bytes("VmHWM") - rss_before;
   for (const StepStats& step : slam->stats().steps) {
     result.step_seconds.push_back(step.seconds);
     result.step_features.push_back(step.num_features);
     result.worst_step_seconds = std::max(result.worst_step_seconds, step.seconds);
+    result.mean_step_seconds += step.seconds;
+    result.paired += step.paired;
+    result.new_features += step.new_features;
+    result.rejected += step.rejected;
   }
+  if (!result.step_seconds.empty()) result.mean_step_seconds /= static_cast<double>(result.step_seconds.size());
   result.features = static_cast<std::int64_t>(estimate.landmark_ids.size());
+  if (true_ids) {
+    std::vector<std::int64_t> flat_ids;
+    for (const auto& ids : returned_ids) flat_ids.insert(flat_ids.end(), ids.begin(), ids.end());
+    result.score = score_pairings(*slam, flat_ids, *true_ids);
+  }
   return result;
 }
 
-SlamConfig config_from(const Args& args) {
-  SlamConfig config;
-  config.association = parse_association(get(args, "association", "known"), "--association");
-  config.join_association =
-      config.association == Association::Known ? JoinAssociation::Known : JoinAssociation::Rjc;
+// The options every filter run takes from the command line, whatever the data.
+void apply_run_options(const Args& args, SlamConfig& config) {
   config.local_map_features = static_cast<int>(number(args, "local-map-features", 30));
   const std::string joins = get(args, "joins", "amortized");
   if (joins != "immediate" && joins != "amortized" && joins != "threaded") {
@@ -177,6 +298,38 @@ SlamConfig config_from(const Args& args) {
   config.threaded_joins = joins == "threaded";
   config.seed = static_cast<std::uint64_t>(number(args, "seed", 0));
   config.validate();
+}
+
+SlamConfig simulation_config(const Args& args) {
+  SlamConfig config;
+  config.association = parse_association(get(args, "association", "known"), "--association");
+  config.join_association =
+      config.association == Association::Known ? JoinAssociation::Known : JoinAssociation::Rjc;
+  apply_run_options(args, config);
+  return config;
+}
+
+// Mirrors python/dcslam/datasets.py, VictoriaPark.slam_config(); the fields it leaves out
+// (tentative policy, JCBB node bound, RJC parameters) keep SlamConfig's defaults there too.
+SlamConfig victoria_park_config(const Args& args, const VictoriaParkData& data) {
+  SlamConfig config;
+  config.observation = ObservationModel::RangeBearing;
+  config.sensor_offset = data.laser_offset;
+  config.association = Association::Jcbb;
+  config.gate_confidence = 0.99;
+  config.join_association = JoinAssociation::Rjc;
+  apply_run_options(args, config);
+  return config;
+}
+
+// Mirrors python/dcslam/datasets.py, Isam2d.slam_config().
+SlamConfig isam_config(const Args& args) {
+  SlamConfig config;
+  config.observation = ObservationModel::Point;
+  config.sensor_offset = Vec3::Zero();
+  config.association = Association::Known;
+  config.join_association = JoinAssociation::Known;
+  apply_run_options(args, config);
   return config;
 }
 
@@ -187,49 +340,87 @@ std::vector<std::string> filters_from(const Args& args) {
   throw InvalidArgument("dcslam_bench: --filter must be ekf, dc or both, got '" + filter + "'");
 }
 
-Simulation simulate_from(const Args& args, int steps) {
-  SimulationConfig sim;
-  sim.trajectory = parse_trajectory(get(args, "trajectory", "snail"), "--trajectory");
-  sim.steps = steps;
-  sim.seed = static_cast<std::uint64_t>(number(args, "seed", 0));
-  sim.clutter = std::stod(get(args, "clutter", "0"));
-  return simulate(sim);
+std::vector<RunResult> run_filters(const Args& args, const SlamConfig& config,
+                                   const std::vector<SlamStep>& steps,
+                                   const std::vector<std::int64_t>* true_ids) {
+  std::vector<RunResult> results;
+  for (const std::string& filter : filters_from(args)) {
+    results.push_back(run_filter(filter, config, steps, true_ids));
+    const Eigen::Index dim = 3 + 2 * results.back().features;
+    results.back().stream_seconds = stream_seconds(dim);
+  }
+  return results;
 }
 
 void print_result(const RunResult& r) {
-  std::printf("  %-4s features %6lld  total %9.3f s  worst step %8.4f s  peak RSS growth %8.1f MB",
+  std::printf("  %-4s features %6lld  total %9.3f s  mean step %9.6f s  worst step %8.4f s  "
+              "peak RSS growth %8.1f MB  (final estimate() %.3f s)\n",
               r.filter.c_str(), static_cast<long long>(r.features), r.total_seconds,
-              r.worst_step_seconds, static_cast<double>(r.peak_rss_growth_bytes) / 1e6);
+              r.mean_step_seconds, r.worst_step_seconds,
+              static_cast<double>(r.peak_rss_growth_bytes) / 1e6, r.estimate_seconds);
+  std::printf("       measurements paired %lld, new features %lld, rejected %lld",
+              static_cast<long long>(r.paired), static_cast<long long>(r.new_features),
+              static_cast<long long>(r.rejected));
+  if (r.score) {
+    std::printf("; vs truth: precision %.4f (%lld/%lld), recall %.4f (%lld/%lld)",
+                r.score->precision(), static_cast<long long>(r.score->correctly_paired),
+                static_cast<long long>(r.score->paired), r.score->recall(),
+                static_cast<long long>(r.score->correctly_paired),
+                static_cast<long long>(r.score->revisits));
+  }
+  std::printf("\n");
   if (!r.joins.empty()) {
     const auto biggest = std::max_element(r.joins.begin(), r.joins.end(), [](const auto& a, const auto& b) {
       return a.report.features_joined < b.report.features_joined;
     });
-    std::printf("  joins %zu, biggest %lld features in %.3f s (%.1fx one stream of the final P)",
+    std::printf("       joins %zu, biggest %lld features in %.3f s (%.1fx one stream of the final P)\n",
                 r.joins.size(), static_cast<long long>(biggest->report.features_joined),
                 biggest->report.seconds_total, biggest->report.seconds_total / r.stream_seconds);
   }
-  std::printf("\n");
 }
 
-void write_json(const std::string& path, const std::string& command, const Args& args,
-                const std::vector<std::pair<int, std::vector<RunResult>>>& runs) {
-  std::ofstream out(path);
-  if (!out) throw InvalidArgument("dcslam_bench: cannot write --json file '" + path + "'");
+void print_ratios(const std::vector<RunResult>& results) {
+  if (results.size() != 2) return;
+  std::printf("  EKF/D&C total time ratio %.1f, worst-step ratio %.1f\n",
+              results[0].total_seconds / results[1].total_seconds,
+              results[0].worst_step_seconds / results[1].worst_step_seconds);
+}
+
+void write_args(std::ostream& out, const std::string& command, const Args& args) {
   out << "{\n  \"command\": \"" << command << "\",\n  \"args\": {";
   bool first = true;
   for (const auto& [key, value] : args) {
     out << (first ? "" : ", ") << "\"" << key << "\": \"" << value << "\"";
     first = false;
   }
-  out << "},\n  \"runs\": [\n";
+  out << "},\n";
+}
+
+void write_json(const std::string& path, const std::string& command, const Args& args,
+                const std::vector<std::pair<int, std::vector<RunResult>>>& runs) {
+  std::ofstream out(path);
+  if (!out) throw InvalidArgument("dcslam_bench: cannot write --json file '" + path + "'");
+  write_args(out, command, args);
+  out << "  \"runs\": [\n";
   for (std::size_t r = 0; r < runs.size(); ++r) {
     for (std::size_t f = 0; f < runs[r].second.size(); ++f) {
       const RunResult& result = runs[r].second[f];
       out << "    {\"steps\": " << runs[r].first << ", \"filter\": \"" << result.filter
           << "\", \"features\": " << result.features << ", \"total_seconds\": " << result.total_seconds
           << ", \"worst_step_seconds\": " << result.worst_step_seconds
+          << ", \"mean_step_seconds\": " << result.mean_step_seconds
+          << ", \"estimate_seconds\": " << result.estimate_seconds
           << ", \"peak_rss_growth_bytes\": " << result.peak_rss_growth_bytes
-          << ", \"stream_seconds\": " << result.stream_seconds << ",\n     \"step_seconds\": [";
+          << ", \"stream_seconds\": " << result.stream_seconds << ",\n     \"paired\": " << result.paired
+          << ", \"new_features\": " << result.new_features << ", \"rejected\": " << result.rejected;
+      if (result.score) {
+        out << ", \"pairing_precision\": " << result.score->precision()
+            << ", \"pairing_recall\": " << result.score->recall()
+            << ", \"correctly_paired\": " << result.score->correctly_paired
+            << ", \"paired_in_final_map\": " << result.score->paired
+            << ", \"revisits\": " << result.score->revisits;
+      }
+      out << ",\n     \"step_seconds\": [";
       for (std::size_t k = 0; k < result.step_seconds.size(); ++k) {
         out << (k ? "," : "") << result.step_seconds[k];
       }
@@ -254,65 +445,141 @@ void write_json(const std::string& path, const std::string& command, const Args&
   out << "  ]\n}\n";
 }
 
-// Least-squares slope of log(y) against log(x).
-double fitted_exponent(const std::vector<double>& x, const std::vector<double>& y) {
-  const std::size_t n = x.size();
-  double sx = 0, sy = 0, sxx = 0, sxy = 0;
-  for (std::size_t i = 0; i < n; ++i) {
-    const double lx = std::log(x[i]), ly = std::log(y[i]);
-    sx += lx, sy += ly, sxx += lx * lx, sxy += lx * ly;
-  }
-  return (n * sxy - sx * sy) / (n * sxx - sx * sx);
+// Prints the results of one run on fixed data and writes them as JSON when asked.
+int report(const std::string& command, const Args& args, int steps, const std::vector<RunResult>& results) {
+  for (const RunResult& r : results) print_result(r);
+  print_ratios(results);
+  if (args.count("json")) write_json(args.at("json"), command, args, {{steps, results}});
+  return 0;
 }
 
-std::vector<RunResult> run_all(const Args& args, int steps) {
-  const SlamConfig config = config_from(args);
+Simulation simulate_from(const Args& args, int steps) {
+  SimulationConfig sim;
+  sim.trajectory = parse_trajectory(get(args, "trajectory", "snail"), "--trajectory");
+  sim.steps = steps;
+  sim.seed = static_cast<std::uint64_t>(number(args, "seed", 0));
+  sim.clutter = std::stod(get(args, "clutter", "0"));
+  return simulate(sim);
+}
+
+std::vector<RunResult> run_simulation(const Args& args, int steps) {
+  const SlamConfig config = simulation_config(args);
   const Simulation sim = simulate_from(args, steps);
-  const auto data = to_steps(sim, config.association == Association::Known);
-  std::vector<RunResult> results;
-  for (const std::string& filter : filters_from(args)) {
-    results.push_back(run_filter(filter, config, data));
-    const Eigen::Index dim = 3 + 2 * results.back().features;
-    results.back().stream_seconds = stream_seconds(dim);
-  }
-  return results;
+  const bool known = config.association == Association::Known;
+  const auto data = steps_from_arrays(
+      sim.odometry, [&sim](Eigen::Index) { return sim.odometry_covariance; }, sim.step_offsets,
+      sim.measurements, sim.measurement_covariances, known ? &sim.true_ids : nullptr);
+  return run_filters(args, config, data, known ? nullptr : &sim.true_ids);
 }
 
 int command_sim(const Args& args) {
   const int steps = static_cast<int>(number(args, "steps", 500));
-  std::printf("sim: %s, %d steps\n", get(args, "trajectory", "snail").c_str(), steps);
-  const auto results = run_all(args, steps);
-  for (const RunResult& r : results) print_result(r);
-  if (results.size() == 2) {
-    std::printf("  EKF/D&C total time ratio %.1f, worst-step ratio %.1f\n",
-                results[0].total_seconds / results[1].total_seconds,
-                results[0].worst_step_seconds / results[1].worst_step_seconds);
-  }
-  if (args.count("json")) write_json(args.at("json"), "sim", args, {{steps, results}});
-  return 0;
+  std::printf("sim: %s, %d steps, association %s, clutter %s\n", get(args, "trajectory", "snail").c_str(),
+              steps, get(args, "association", "known").c_str(), get(args, "clutter", "0").c_str());
+  return report("sim", args, steps, run_simulation(args, steps));
 }
 
 int command_scaling(const Args& args) {
-  std::vector<int> sizes;
-  std::stringstream list(get(args, "sizes", "100,200,400,800"));
-  for (std::string item; std::getline(list, item, ',');) sizes.push_back(std::stoi(item));
   std::vector<std::pair<int, std::vector<RunResult>>> runs;
   std::map<std::string, std::vector<double>> features, totals;
-  for (int steps : sizes) {
-    std::printf("scaling: %s, %d steps\n", get(args, "trajectory", "snail").c_str(), steps);
-    auto results = run_all(args, steps);
+  for (long steps : number_list(args, "sizes", "100,200,400,800")) {
+    std::printf("scaling: %s, %ld steps\n", get(args, "trajectory", "snail").c_str(), steps);
+    auto results = run_simulation(args, static_cast<int>(steps));
     for (const RunResult& r : results) {
       print_result(r);
       features[r.filter].push_back(static_cast<double>(r.features));
       totals[r.filter].push_back(r.total_seconds);
     }
-    runs.emplace_back(steps, std::move(results));
+    runs.emplace_back(static_cast<int>(steps), std::move(results));
   }
   for (const auto& [filter, n] : features) {
     std::printf("  %s: fitted exponent of total time vs features: %.2f\n", filter.c_str(),
                 fitted_exponent(n, totals[filter]));
   }
   if (args.count("json")) write_json(args.at("json"), "scaling", args, runs);
+  return 0;
+}
+
+int command_vp(const Args& args) {
+  const std::string folder = get(args, "data-dir", DCSLAM_SOURCE_DIR "/python/dcslam/data/victoria_park");
+  // Noise and range come from the struct so that the bench follows the tuned defaults.
+  const VictoriaParkOptions options;
+  const VictoriaParkData data = load_victoria_park(VictoriaParkFiles::in_folder(folder), options);
+  const SlamConfig config = victoria_park_config(args, data);
+  const auto covariance = covariance_rows(data.Q);
+  const auto steps = steps_from_arrays(data.u, covariance, data.offsets, data.z, data.R, nullptr);
+  std::printf("vp: %s\n  %zu steps, %lld measurements (%lld detections, %lld beyond max_range %g m)\n",
+              folder.c_str(), steps.size(), static_cast<long long>(data.z.rows()),
+              static_cast<long long>(data.detections_total),
+              static_cast<long long>(data.detections_beyond_range), options.max_range);
+  std::printf("  options: steering %s, sigma_range %g m, sigma_bearing %g rad, sigma_speed %g m/s, "
+              "sigma_steering %g rad, floor_sigma_xy %g, floor_sigma_phi %g\n",
+              options.steering == Steering::Recalibrated ? "recalibrated" : "raw", options.sigma_range,
+              options.sigma_bearing, options.odometry.sigma_speed, options.odometry.sigma_steering,
+              options.odometry.floor_sigma_xy, options.odometry.floor_sigma_phi);
+  std::printf("  config: range_bearing, sensor offset (%g, %g, %g), association %s, join %s, gate %g, "
+              "local maps of %d features, min_sightings %d, tentative_window %d\n",
+              config.sensor_offset.x(), config.sensor_offset.y(), config.sensor_offset.z(),
+              to_string(config.association), to_string(config.join_association), config.gate_confidence,
+              config.local_map_features, config.min_sightings, config.tentative_window);
+  return report("vp", args, static_cast<int>(steps.size()), run_filters(args, config, steps, nullptr));
+}
+
+int command_isam(const std::string& path, Args args) {
+  const Isam2dData data = read_isam2d(path);
+  const SlamConfig config = isam_config(args);
+  const auto covariance = covariance_rows(data.Q);
+  const auto steps =
+      steps_from_arrays(data.u, covariance, data.offsets, data.z, data.R, &data.landmark_ids);
+  std::printf("isam: %s\n  %zu steps (%lld ODOMETRY lines), %lld measurements (LANDMARK lines)\n",
+              path.c_str(), steps.size(), static_cast<long long>(data.odometry_lines),
+              static_cast<long long>(data.landmark_lines));
+  args["file"] = path;  // recorded in the JSON with the options
+  return report("isam", args, static_cast<int>(steps.size()), run_filters(args, config, steps, nullptr));
+}
+
+void write_association_json(const std::string& path, const Args& args, const AssociationBenchResult& result) {
+  std::ofstream out(path);
+  if (!out) throw InvalidArgument("dcslam_bench: cannot write --json file '" + path + "'");
+  write_args(out, "association", args);
+  out << "  \"exponent_rjc\": " << result.exponent_rjc << ", \"exponent_jcbb\": " << result.exponent_jcbb
+      << ", \"exponent_all_pairs\": " << result.exponent_all_pairs << ",\n  \"rows\": [\n";
+  for (std::size_t k = 0; k < result.rows.size(); ++k) {
+    const AssociationBenchRow& row = result.rows[k];
+    out << "    {\"features\": " << row.features << ", \"overlap\": " << row.overlap
+        << ", \"true_pairs\": " << row.true_pairs << ", \"pairs_rjc\": " << row.pairs_rjc
+        << ", \"wrong_rjc\": " << row.wrong_rjc << ", \"tries_rjc\": " << row.tries_rjc
+        << ", \"pairs_jcbb\": " << row.pairs_jcbb << ", \"wrong_jcbb\": " << row.wrong_jcbb
+        << ", \"seconds_rjc\": " << row.seconds_rjc << ", \"seconds_jcbb\": " << row.seconds_jcbb
+        << ", \"seconds_all_pairs\": " << row.seconds_all_pairs
+        << ", \"compatible_all_pairs\": " << row.compatible_all_pairs << "}"
+        << (k + 1 == result.rows.size() ? "\n" : ",\n");
+  }
+  out << "  ]\n}\n";
+}
+
+int command_association(const Args& args) {
+  std::vector<Eigen::Index> sizes;
+  for (long size : number_list(args, "sizes", "1000,2000,5000,10000")) sizes.push_back(size);
+  const int overlap = static_cast<int>(number(args, "overlap", 200));
+  const int repetitions = static_cast<int>(number(args, "repetitions", 3));
+  const auto seed = static_cast<std::uint64_t>(number(args, "seed", 1));
+  std::printf("association: two maps of n/2 features, %d of the second re-observed; median of %d runs\n",
+              overlap, repetitions);
+  const AssociationBenchResult result = benchmark_join_association(sizes, overlap, repetitions, seed);
+  std::printf("  %6s %7s %6s | %9s %5s %5s %5s | %9s %5s %5s | %11s %10s\n", "n", "overlap", "true",
+              "RJC s", "pairs", "wrong", "tries", "JCBB s", "pairs", "wrong", "all-pairs s", "compatible");
+  for (const AssociationBenchRow& row : result.rows) {
+    std::printf("  %6lld %7d %6d | %9.5f %5d %5d %5d | %9.5f %5d %5d | %11.5f %10lld\n",
+                static_cast<long long>(row.features), row.overlap, row.true_pairs, row.seconds_rjc,
+                row.pairs_rjc, row.wrong_rjc, row.tries_rjc, row.seconds_jcbb, row.pairs_jcbb,
+                row.wrong_jcbb, row.seconds_all_pairs, static_cast<long long>(row.compatible_all_pairs));
+  }
+  if (result.rows.size() >= 2) {
+    std::printf("  fitted exponents of time vs n: RJC %.2f, JCBB %.2f, all-pairs %.2f\n",
+                result.exponent_rjc, result.exponent_jcbb, result.exponent_all_pairs);
+  }
+  if (args.count("json")) write_association_json(args.at("json"), args, result);
   return 0;
 }
 
@@ -325,9 +592,18 @@ int main(int argc, char** argv) {
       std::cout << kUsage;
       return 0;
     }
+    if (command == "isam") {
+      if (argc < 3 || std::strncmp(argv[2], "--", 2) == 0) {
+        std::cerr << "dcslam_bench: isam needs a FILE\n" << kUsage;
+        return 2;
+      }
+      return command_isam(argv[2], parse_args(argc, argv, 3));
+    }
     const Args args = parse_args(argc, argv, 2);
     if (command == "sim") return command_sim(args);
     if (command == "scaling") return command_scaling(args);
+    if (command == "vp") return command_vp(args);
+    if (command == "association") return command_association(args);
     std::cerr << "dcslam_bench: unknown command '" << command << "'\n" << kUsage;
     return 2;
   } catch (const std::exception& error) {
