@@ -52,6 +52,8 @@ double candidate_confidence(double gate_confidence) { return 1.0 - 0.1 * (1.0 - 
 
 }  // namespace
 
+constexpr int kJcbbFallbackOverlap = 30;
+
 JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options) {
   const GaussianMap& m1 = frame.first();
   const GaussianMap& m2 = frame.second();
@@ -89,8 +91,8 @@ JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& 
 
   // RJC is for large overlaps. On a small one, JCBB with the star node is exact and cheap;
   // and where every RJC try fails (no b-sample of the overlap was all-good: on real data far
-  // fewer than p_good of the overlap features have a partner), JCBB decides instead, bounded
-  // by its node limit.
+  // fewer than p_good of the overlap features have a partner), JCBB decides instead, while
+  // the overlap is small enough for its O(k^3) hypothesis path (kJcbbFallbackOverlap).
   const JcbbOptions jcbb_options = [&] {
     JcbbOptions o;
     o.confidence = options.gate_confidence;
@@ -105,10 +107,13 @@ JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& 
     rjc_options.p_fail = options.rjc_p_fail;
     rjc_options.confidence = options.gate_confidence;
     rjc_options.seed = options.seed;
+    rjc_options.max_nodes_per_try = 5000;  // b = 4 seeds: a bounded search of 4 levels
     RjcResult rjc_result = rjc(candidates, model, rjc_options);
     result.tries = rjc_result.tries;
     feature_of = std::move(rjc_result.feature_of);
-    if (rjc_result.pairings == 0) feature_of = jcbb(candidates, model, jcbb_options).feature_of;
+    if (rjc_result.pairings == 0 && result.overlap <= kJcbbFallbackOverlap) {
+      feature_of = jcbb(candidates, model, jcbb_options).feature_of;
+    }
   } else {
     feature_of = jcbb(candidates, model, jcbb_options).feature_of;
   }
