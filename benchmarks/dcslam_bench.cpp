@@ -379,7 +379,34 @@ void print_result(const RunResult& r) {
   }
 }
 
+// The EKF's per-step cost against map size: the fitted exponent of median step time in
+// bins of n (over the second half of the map's growth, where the O(n^2) update dominates),
+// and the last steps' time against one stream of P of the final size.
+void print_ekf_step_scaling(const RunResult& r) {
+  if (r.filter != "ekf" || r.step_seconds.size() < 40 || r.features < 100) return;
+  std::map<std::int64_t, std::vector<double>> bins;
+  const std::int64_t bin_width = std::max<std::int64_t>(1, r.features / 20);
+  for (std::size_t k = 0; k < r.step_seconds.size(); ++k) {
+    if (2 * r.step_features[k] < r.features) continue;
+    bins[r.step_features[k] / bin_width].push_back(r.step_seconds[k]);
+  }
+  std::vector<double> n, t;
+  for (auto& [bin, times] : bins) {
+    std::nth_element(times.begin(), times.begin() + static_cast<std::ptrdiff_t>(times.size() / 2), times.end());
+    n.push_back(static_cast<double>((bin + 0.5) * bin_width));
+    t.push_back(times[times.size() / 2]);
+  }
+  if (n.size() < 3) return;
+  const std::size_t tail = std::max<std::size_t>(1, r.step_seconds.size() / 20);
+  std::vector<double> last(r.step_seconds.end() - static_cast<std::ptrdiff_t>(tail), r.step_seconds.end());
+  std::nth_element(last.begin(), last.begin() + static_cast<std::ptrdiff_t>(last.size() / 2), last.end());
+  std::printf("       EKF time per step ~ n^%.2f (median per bin, n from %lld to %lld); last steps' median %.4f s = %.1fx one stream of P\n",
+              fitted_exponent(n, t), static_cast<long long>(r.features / 2), static_cast<long long>(r.features),
+              last[last.size() / 2], last[last.size() / 2] / r.stream_seconds);
+}
+
 void print_ratios(const std::vector<RunResult>& results) {
+  for (const RunResult& r : results) print_ekf_step_scaling(r);
   if (results.size() != 2) return;
   std::printf("  EKF/D&C total time ratio %.1f, worst-step ratio %.1f\n",
               results[0].total_seconds / results[1].total_seconds,
