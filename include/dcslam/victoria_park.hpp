@@ -36,8 +36,11 @@ double recalibrated_steering(double raw_steering);
 struct OdometryNoise {
   // White noise on the encoder speed [m/s] and steering [rad], as the standard deviation of
   // one 40 Hz sample; a segment of length dt gets variance sigma^2 * sample_period / dt.
-  double sigma_speed = 0.3;
-  double sigma_steering = 0.05;
+  // The real errors are mostly systematic (slip, steering bias) and do not average out over
+  // a scan as white noise would, hence values well above the sensors' resolution; chosen
+  // with tools/vp_noise_study.py (docs/victoria_park.md).
+  double sigma_speed = 0.6;
+  double sigma_steering = 0.1;
   double sample_period = 0.025;
   // Additive floor per second of motion, in the robot frame: keeps Q positive definite when
   // the car stands still and covers what the two-input model leaves out (slip, bumps).
@@ -62,8 +65,10 @@ struct VictoriaParkOptions {
   Steering steering = Steering::Recalibrated;
   OdometryNoise odometry;
   double max_range = 30.0;       // trees whose trunk centre is farther are dropped [m]
-  double sigma_range = 0.1;      // [m]
-  double sigma_bearing = 0.008;  // [rad]
+  // Per detection, set so that local maps averaging many correlated detections of one trunk
+  // stay consistent with each other (docs/victoria_park.md).
+  double sigma_range = 0.2;      // [m]
+  double sigma_bearing = 0.016;  // [rad]
 };
 
 // File names inside a Victoria Park data folder.

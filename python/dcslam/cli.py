@@ -118,7 +118,7 @@ def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Pat
                  plots: bool, progress: Optional[bool], gps=None, hint: str = "") -> None:
     """Builds every pipeline first (bad options fail before any work), runs them, writes and
     summarises the results. ``hint`` is added to the message of a refused configuration."""
-    from .pipeline import SlamPipeline, gps_alignment
+    from .pipeline import SlamPipeline, gps_alignment, map_agreement, map_trajectory
 
     show_progress = console.is_terminal if progress is None else progress
     try:
@@ -132,15 +132,18 @@ def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Pat
         _fail(f"{name}: {error}")
 
     alignments: Dict[str, object] = {}
+    map_alignments: Dict[str, object] = {}
     if gps is not None:
         for result in results:
             try:
                 alignments[result.filter_name] = gps_alignment(result.timestamps, result.trajectory, gps)
+                map_alignments[result.filter_name] = gps_alignment(*map_trajectory(result, steps), gps)
             except ValueError as error:
                 console.print(f"[yellow]GPS alignment of {result.filter_name} skipped:[/] {error}")
+    agreement = map_agreement(results[0].estimate, results[1].estimate) if len(results) == 2 else None
 
     written = _write_outputs(results, alignments, output, plots, name)
-    console.print(_summary_table(name, results, alignments))
+    console.print(_summary_table(name, results, alignments, map_alignments, agreement))
     console.print(f"Outputs in [bold]{output}[/]:")
     for path in written:
         console.print(f"  {path}")
@@ -183,7 +186,7 @@ def _write_outputs(results, alignments, output: Path, plots: bool, name: str) ->
     return written
 
 
-def _summary_table(name: str, results, alignments) -> Table:
+def _summary_table(name: str, results, alignments, map_alignments, agreement) -> Table:
     table = Table(title=f"{name}: SLAM run")
     table.add_column("")
     for result in results:
@@ -206,6 +209,14 @@ def _summary_table(name: str, results, alignments) -> Table:
     if alignments:
         row("GPS RMS after rigid alignment (m)",
             [f"{alignments[r.filter_name].rms:.2f}" if r.filter_name in alignments else "-" for r in results])
+    if map_alignments:
+        row("GPS RMS, poses from the final map (m)",
+            [f"{map_alignments[r.filter_name].rms:.2f}" if r.filter_name in map_alignments else "-"
+             for r in results])
+    if agreement is not None:
+        # Row of a filter: share of its landmarks within the radius of one of the other's.
+        row(f"landmarks within {agreement.radius:g} m of the other map",
+            [f"{100 * agreement.first_in_second:.1f} %", f"{100 * agreement.second_in_first:.1f} %"])
     return table
 
 

@@ -33,10 +33,10 @@ VICTORIA_PARK_FILES = ("vp_odometry.csv.gz", "vp_scans.csv.gz", "vp_trees.csv.gz
 VICTORIA_PARK_DEFAULTS = dict(
     steering="recalibrated",
     max_range=30.0,
-    sigma_range=0.1,
-    sigma_bearing=0.008,
-    sigma_speed=0.3,
-    sigma_steering=0.05,
+    sigma_range=0.2,
+    sigma_bearing=0.016,
+    sigma_speed=0.6,
+    sigma_steering=0.1,
     floor_sigma_xy=0.02,
     floor_sigma_phi=0.002,
 )
@@ -197,8 +197,8 @@ def victoria_park(data_dir: Optional[PathLike] = None, **options) -> VictoriaPar
         steering: ``"recalibrated"`` (default: ACFR's fit 1.059·α + 0.0026, much closer to
             GPS) or ``"raw"`` (as logged; what the iSAM/GTSAM file integrated).
         max_range: trees whose trunk centre is farther than this [m] are dropped (30).
-        sigma_range, sigma_bearing: measurement noise [m], [rad] (0.1, 0.008).
-        sigma_speed, sigma_steering: odometry noise per 40 Hz sample [m/s], [rad] (0.3, 0.05).
+        sigma_range, sigma_bearing: measurement noise [m], [rad] (0.2, 0.016).
+        sigma_speed, sigma_steering: odometry noise per 40 Hz sample [m/s], [rad] (0.6, 0.1).
         floor_sigma_xy, floor_sigma_phi: additive motion noise per sqrt(second) [m], [rad]
             (0.02, 0.002).
 

@@ -4,7 +4,9 @@
 to an :class:`~dcslam.EkfSlam` or :class:`~dcslam.DCSlam`, records the robot's pose after
 every step and the filter's own per-step timings, and ends with the full estimate, all in a
 :class:`PipelineResult`. :func:`gps_alignment` compares a trajectory with a GPS track (the
-only reference Victoria Park has) after a rigid 2D fit.
+only reference Victoria Park has) after a rigid 2D fit; :func:`map_trajectory` re-estimates
+every pose from the final map, so that both filters' trajectories are judged on the same
+footing; :func:`map_agreement` says how far two maps of the same run are the same map.
 """
 
 from __future__ import annotations
@@ -12,10 +14,11 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import time
-from typing import Any, Dict, Optional, Sequence
+from typing import Any, Dict, List, Optional, Sequence
 
 import numpy as np
 
+from . import geometry
 from .config import SlamConfig
 from .slam import DCSlam, DCSlamStats, EkfSlam, Estimate, SlamFilter, SlamStats
 
@@ -27,6 +30,9 @@ __all__ = [
     "gps_outliers",
     "gps_alignment",
     "rigid_fit_2d",
+    "MapAgreement",
+    "map_agreement",
+    "map_trajectory",
 ]
 
 FILTERS = {"dc": DCSlam, "ekf": EkfSlam}
@@ -43,7 +49,11 @@ class PipelineResult:
         timestamps: (k,) time of each step: the dataset's ``s.t`` when it has one, else the
             step index.
         trajectory: (k, 3) robot pose (x, y, phi) right after each step, as the filter knew
-            it then (a filter's past poses are never revised).
+            it then (a filter's past poses are never revised; for D&C this is the chain of
+            local maps, with only the joins done so far: see :func:`map_trajectory`).
+        measurement_ids: per step, the (m,) feature ids :meth:`~dcslam.SlamFilter.update`
+            returned, resolved at the end of the run to the features of the final map
+            (-1: rejected, or a feature removed later).
         stats: the filter's per-step statistics (:class:`~dcslam.DCSlamStats` for D&C).
         estimate_seconds: time of the final :meth:`~dcslam.SlamFilter.estimate` call; for
             D&C it includes the joins of the maps left on the stack.
@@ -55,6 +65,7 @@ class PipelineResult:
     estimate: Estimate
     timestamps: np.ndarray
     trajectory: np.ndarray
+    measurement_ids: List[np.ndarray]
     stats: SlamStats
     estimate_seconds: float
     wall_seconds: float
@@ -168,13 +179,14 @@ class SlamPipeline:
         use_ids = self.config.association == "known"
         timestamps = np.empty(self.step_count)
         trajectory = np.empty((self.step_count, 3))
+        returned_ids = []
         started = time.perf_counter()
         with _progress_bar(self.progress, self.description, self.step_count) as advance:
             for k in range(self.step_count):
                 step = self.dataset_steps[k]
                 slam.predict(step.u, step.Q)
                 ids = getattr(step, self.ids_field) if use_ids else None
-                slam.update(step.z, step.R, ids)
+                returned_ids.append(slam.update(step.z, step.R, ids))
                 trajectory[k] = slam.pose()
                 when = getattr(step, "t", None)
                 timestamps[k] = k if when is None else when
@@ -182,12 +194,16 @@ class SlamPipeline:
         estimate_started = time.perf_counter()
         estimate = slam.estimate()
         finished = time.perf_counter()
+        counts = [len(ids) for ids in returned_ids]
+        resolved = slam.resolve(np.concatenate(returned_ids)) if counts else np.empty(0, np.int64)
+        measurement_ids = np.split(resolved, np.cumsum(counts)[:-1]) if counts else []
         return PipelineResult(
             filter_name=self.filter_name,
             config=self.config,
             estimate=estimate,
             timestamps=timestamps,
             trajectory=trajectory,
+            measurement_ids=measurement_ids,
             stats=slam.stats,
             estimate_seconds=finished - estimate_started,
             wall_seconds=finished - started,
@@ -341,3 +357,110 @@ def gps_alignment(timestamps, trajectory, gps, max_speed: float = 20.0) -> GpsAl
         trajectory_at_gps=at_gps,
         outliers=int(outlier.sum()),
     )
+
+
+def map_trajectory(result: PipelineResult, dataset_steps: Sequence[Any], min_landmarks: int = 3):
+    """Each step's robot pose re-estimated from the final map.
+
+    A filter's own trajectory is what it knew at each step. For the EKF that is the
+    filtered pose; for D&C it is the chain of local maps, which only holds the joins done by
+    then, so loop closures found later never reach it. To compare the two on the same
+    footing, every step's measurements are placed in the robot frame (range–bearing or
+    points, with the config's sensor offset) and rigidly fitted (:func:`rigid_fit_2d`) onto
+    the final-map landmarks their resolved ids point to. The result is what the final map
+    says the robot's path was, the same computation for both filters.
+
+    Args:
+        result: the run (its ``measurement_ids`` and ``estimate``).
+        dataset_steps: the steps it ran on (``s.z`` of each).
+        min_landmarks: steps with fewer paired measurements get no pose.
+
+    Returns:
+        (timestamps (k,), poses (k, 3)) of the steps that got a pose.
+    """
+    config = result.config
+    position_of = {int(i): p for i, p in zip(result.estimate.landmark_ids, result.estimate.landmarks)}
+    origin = np.zeros(3)
+    times, poses = [], []
+    for k, ids in enumerate(result.measurement_ids):
+        paired = [(z, position_of[int(i)]) for z, i in zip(dataset_steps[k].z, ids) if int(i) in position_of]
+        if len(paired) < min_landmarks:
+            continue
+        in_robot = np.array([geometry.inverse_observe(config.observation, config.sensor_offset, origin, z)
+                             for z, _ in paired])
+        rotation, translation = rigid_fit_2d(in_robot, np.array([p for _, p in paired]))
+        poses.append([translation[0], translation[1], np.arctan2(rotation[1, 0], rotation[0, 0])])
+        times.append(result.timestamps[k])
+    return np.array(times), np.array(poses).reshape(-1, 3)
+
+
+@dataclasses.dataclass(frozen=True)
+class MapAgreement:
+    """How far two maps of the same run are the same map (see :func:`map_agreement`).
+
+    Attributes:
+        first_in_second: share of the first map's landmarks with a landmark of the second
+            within ``radius``; second_in_first: the same the other way round.
+        radius: the distance used [m].
+        first_size, second_size: landmark counts.
+    """
+
+    first_in_second: float
+    second_in_first: float
+    radius: float
+    first_size: int
+    second_size: int
+
+
+def map_agreement(first, second, radius: float = 1.0) -> MapAgreement:
+    """Share of each map's landmarks that lie within ``radius`` of a landmark of the other.
+
+    No alignment: both maps must be in the same frame, as two filters' estimates of one run
+    are (the first pose's frame). Duplicated landmarks in one map do not lower its own share
+    (each copy has a neighbour in the other map) but leave no trace in the other share
+    either; compare the sizes as well.
+
+    Args:
+        first, second: :class:`~dcslam.Estimate` or (n, 2) landmark positions.
+        radius: the largest distance [m] at which two landmarks count as the same.
+
+    Returns:
+        :class:`MapAgreement`; a share is 1.0 when its map is empty.
+    """
+    if radius <= 0:
+        raise ValueError(f"map_agreement: radius must be positive, got {radius}")
+    first_points = _landmark_positions(first, "first")
+    second_points = _landmark_positions(second, "second")
+    return MapAgreement(
+        first_in_second=_share_near(first_points, second_points, radius),
+        second_in_first=_share_near(second_points, first_points, radius),
+        radius=float(radius),
+        first_size=len(first_points),
+        second_size=len(second_points),
+    )
+
+
+def _landmark_positions(map_or_points, name: str) -> np.ndarray:
+    points = np.asarray(getattr(map_or_points, "landmarks", map_or_points), dtype=float)
+    if points.ndim != 2 or points.shape[1] != 2:
+        raise ValueError(f"map_agreement: {name} must be an Estimate or (n, 2) positions, got shape {points.shape}")
+    return points
+
+
+def _share_near(points: np.ndarray, others: np.ndarray, radius: float) -> float:
+    if len(points) == 0:
+        return 1.0
+    if len(others) == 0:
+        return 0.0
+    # Sorted by x, each point only looks at the others within radius in x: O((n + m) log m)
+    # plus the neighbours in the strip, instead of an n x m distance matrix.
+    order = np.argsort(others[:, 0])
+    sorted_others = others[order]
+    lows = np.searchsorted(sorted_others[:, 0], points[:, 0] - radius, side="left")
+    highs = np.searchsorted(sorted_others[:, 0], points[:, 0] + radius, side="right")
+    near = 0
+    for point, low, high in zip(points, lows, highs):
+        strip = sorted_others[low:high]
+        if len(strip) and np.min(np.hypot(*(strip - point).T)) <= radius:
+            near += 1
+    return near / len(points)

@@ -1,0 +1,49 @@
+"""Both filters on the first 1500 scans of Victoria Park (about 5 min of driving, the first
+loop): what they agree on today, and the paper's "essentially the same map" as an open target.
+Numbers measured with the defaults of docs/victoria_park.md: EKF 236 landmarks, D&C 341,
+GPS RMS 4.9 m for both (poses from the final map), map agreement at 1 m 22 % / 18 %."""
+
+import numpy as np
+import pytest
+
+import dcslam
+from dcslam.pipeline import SlamPipeline, gps_alignment, map_agreement, map_trajectory
+
+SCANS = 1500
+
+
+@pytest.fixture(scope="module")
+def victoria_park():
+    return dcslam.datasets.victoria_park()
+
+
+@pytest.fixture(scope="module")
+def runs(victoria_park):
+    cfg = victoria_park.slam_config()
+    return {name: SlamPipeline(victoria_park.steps, cfg, filter=name, max_steps=SCANS).run() for name in ("ekf", "dc")}
+
+
+def test_both_trajectories_follow_gps(victoria_park, runs):
+    for result in runs.values():
+        own = gps_alignment(result.timestamps, result.trajectory, victoria_park.gps)
+        from_map = gps_alignment(*map_trajectory(result, victoria_park.steps), victoria_park.gps)
+        assert own.rms < 8.0 and from_map.rms < 8.0, result.filter_name
+
+
+def test_map_sizes_are_close_enough(runs):
+    ekf, dc = runs["ekf"].map_size, runs["dc"].map_size
+    assert 150 < ekf < 350
+    # D&C keeps duplicates the joins did not merge (docs/victoria_park.md, "D&C against the EKF").
+    assert ekf <= dc <= 1.7 * ekf
+
+
+@pytest.mark.xfail(strict=True, reason="D&C and EKF maps still differ by metres (docs/victoria_park.md)")
+def test_maps_are_essentially_the_same(runs):
+    agreement = map_agreement(runs["dc"].estimate, runs["ekf"].estimate, radius=1.0)
+    assert min(agreement.first_in_second, agreement.second_in_first) >= 0.95
+
+
+def test_map_agreement_is_measured_in_one_frame(runs):
+    agreement = map_agreement(runs["dc"].estimate, runs["ekf"].estimate, radius=5.0)
+    # Within 5 m most landmarks have a counterpart: both maps are in the first pose's frame.
+    assert agreement.first_in_second > 0.6 and agreement.second_in_first > 0.6
