@@ -10,6 +10,19 @@ from . import _core
 __all__ = ["SlamConfig"]
 
 
+def to_core_struct(values: Any, core: Any, name: str) -> Any:
+    """Copies every field of the dataclass ``values`` onto the compiled struct ``core`` and
+    runs its ``validate()``: type and range errors become ``ValueError`` naming the field."""
+    for field in dataclasses.fields(values):
+        value = getattr(values, field.name)
+        try:
+            setattr(core, field.name, value)
+        except TypeError as error:  # wrong Python type for a compiled field
+            raise ValueError(f"{name}.{field.name}: invalid value {value!r} ({error})") from None
+    core.validate()
+    return core
+
+
 @dataclasses.dataclass
 class SlamConfig:
     """Options of an :class:`~dcslam.EkfSlam` or :class:`~dcslam.DCSlam` run.
@@ -57,17 +70,7 @@ class SlamConfig:
     threaded_joins: bool = False
 
     def _to_core(self) -> "_core.SlamConfig":
-        core = _core.SlamConfig()
-        for field in dataclasses.fields(self):
-            value = getattr(self, field.name)
-            try:
-                setattr(core, field.name, value)
-            except TypeError as error:  # wrong Python type for a compiled field
-                raise ValueError(
-                    f"SlamConfig.{field.name}: invalid value {value!r} ({error})"
-                ) from None
-        core.validate()
-        return core
+        return to_core_struct(self, _core.SlamConfig(), "SlamConfig")
 
     def validate(self) -> "SlamConfig":
         """Checks every field; raises ``ValueError`` naming the first bad one."""

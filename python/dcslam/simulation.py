@@ -30,6 +30,7 @@ from typing import Any, Iterator, Optional, Tuple, Union, overload
 import numpy as np
 
 from . import _core
+from .config import to_core_struct
 
 __all__ = ["SimulationConfig", "Simulation", "Step", "Steps", "simulate"]
 
@@ -97,17 +98,7 @@ class SimulationConfig:
     clutter: float = 0.0
 
     def _to_core(self) -> "_core.SimulationConfig":
-        core = _core.SimulationConfig()
-        for field in dataclasses.fields(self):
-            value = getattr(self, field.name)
-            try:
-                setattr(core, field.name, value)
-            except TypeError as error:  # wrong Python type for a compiled field
-                raise ValueError(
-                    f"SimulationConfig.{field.name}: invalid value {value!r} ({error})"
-                ) from None
-        core.validate()
-        return core
+        return to_core_struct(self, _core.SimulationConfig(), "SimulationConfig")
 
     def validate(self) -> "SimulationConfig":
         """Checks every field; raises ``ValueError`` naming the first bad one."""
