@@ -9,7 +9,7 @@ GTSAM's own ``load2D`` would instead turn these lines into bearing/range factors
 model. The reference is the batch optimum (Levenberg-Marquardt started at iSAM2's answer).
 
 Usage:
-    python benchmarks/gtsam_compare.py [--file PATH] [--max-steps N] [--json OUT]
+    python benchmarks/gtsam_compare.py [--file PATH] [--max-steps N] [--json OUT] [--markdown]
 
 Needs GTSAM: ``pip install dcslam[gtsam]`` (or ``pip install gtsam``).
 """
@@ -17,6 +17,7 @@ Needs GTSAM: ``pip install dcslam[gtsam]`` (or ``pip install gtsam``).
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
 import json
 import math
 import sys
@@ -25,6 +26,8 @@ from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
 import numpy as np
+from rich.console import Console
+from rich.table import Table
 
 import dcslam
 from dcslam.datasets import read_isam2d
@@ -229,7 +232,7 @@ def compare(path: Path, max_steps: Optional[int] = None, marginals: bool = True)
     return dict(
         file=str(path), steps=len(steps), poses=final_pose_id + 1 if steps else 1,
         landmarks=int(len(landmark_ids)), measurements=int(sum(len(s.z) for s in steps)),
-        gtsam_version=getattr(gtsam, "__version__", "unknown"), dcslam_version=dcslam.__version__,
+        gtsam_version=importlib.metadata.version("gtsam"), dcslam_version=dcslam.__version__,
         local_map_features=cfg.local_map_features,
         methods=methods,
         dc_over_isam2_time=dc_total / isam2_total,
@@ -243,45 +246,51 @@ def compare(path: Path, max_steps: Optional[int] = None, marginals: bool = True)
     )
 
 
-def print_report(report: Dict) -> None:
-    labels = {"isam2": "GTSAM iSAM2", "dcslam_dc": "dcslam D&C", "dcslam_ekf": "dcslam EKF"}
-    header = ["method", "updates [s]", "estimate [s]", "total [s]", "landmark RMS vs batch [m]",
-              "landmark max [m]", "final pos. [m]", "final heading [rad]"]
+METHOD_LABELS = {"isam2": "GTSAM iSAM2", "dcslam_dc": "dcslam D&C", "dcslam_ekf": "dcslam EKF"}
+TABLE_HEADER = ["method", "updates (s)", "estimate (s)", "total (s)", "lm RMS (m)", "lm max (m)",
+                "pose (m)", "heading (rad)"]
+
+
+def table_rows(report: Dict) -> List[List[str]]:
     rows = []
     for name, method in report["methods"].items():
         d = method["vs_batch"]
-        rows.append([labels[name], f"{method['update_seconds']:.3f}", f"{method['estimate_seconds']:.3f}",
-                     f"{method['total_seconds']:.3f}", f"{d['landmark_rms_m']:.4g}", f"{d['landmark_max_m']:.4g}",
-                     f"{d['final_position_m']:.4g}", f"{d['final_heading_rad']:.3g}"])
+        rows.append([METHOD_LABELS[name], f"{method['update_seconds']:.4f}", f"{method['estimate_seconds']:.4f}",
+                     f"{method['total_seconds']:.4f}", f"{d['landmark_rms_m']:.3g}", f"{d['landmark_max_m']:.3g}",
+                     f"{d['final_position_m']:.3g}", f"{d['final_heading_rad']:.3g}"])
+    return rows
+
+
+def print_report(report: Dict, markdown: bool = False) -> None:
     title = (f"{Path(report['file']).name}: {report['steps']} steps, {report['poses']} poses, "
              f"{report['landmarks']} landmarks, {report['measurements']} measurements "
-             f"(gtsam {report['gtsam_version']}, dcslam {report['dcslam_version']})")
-    try:
-        from rich.console import Console
-        from rich.table import Table
-    except ImportError:
-        print(title)
-        print(" | ".join(header))
-        for row in rows:
-            print(" | ".join(row))
+             f"(gtsam {report['gtsam_version']}, dcslam {report['dcslam_version']}, "
+             f"local maps of {report['local_map_features']} features)")
+    caption = "lm RMS/max, pose, heading: difference from the batch optimum (frame of pose 0, final pose)"
+    if markdown:
+        print(title + "\n")
+        print("| " + " | ".join(TABLE_HEADER) + " |")
+        print("|" + "|".join("---" for _ in TABLE_HEADER) + "|")
+        for row in table_rows(report):
+            print("| " + " | ".join(row) + " |")
+        print("\n" + caption + "\n")
     else:
-        table = Table(title=title)
-        for column in header:
+        table = Table(title=title, caption=caption)
+        for column in TABLE_HEADER:
             table.add_column(column, justify="left" if column == "method" else "right")
-        for row in rows:
+        for row in table_rows(report):
             table.add_row(*row)
-        Console().print(table)
+        Console(width=max(Console().width, 110)).print(table)
 
     callback = report["isam2_callback"]
     batch = report["batch"]
     dc_isam2, dc_ekf = report["dc_vs_isam2"], report["dc_vs_ekf"]
     notes = [
-        f"time ratio dcslam D&C / iSAM2: {report['dc_over_isam2_time']:.3f}",
-        f"dcslam D&C vs iSAM2: landmark RMS {dc_isam2['landmark_rms_m']:.4g} m, "
-        f"final position {dc_isam2['final_position_m']:.4g} m; D&C vs EKF: landmark RMS "
-        f"{dc_ekf['landmark_rms_m']:.3g} m",
+        f"time ratio dcslam D&C / iSAM2: {report['dc_over_isam2_time']:.3g}",
+        f"dcslam D&C vs iSAM2: landmark RMS {dc_isam2['landmark_rms_m']:.3g} m, final position "
+        f"{dc_isam2['final_position_m']:.3g} m; D&C vs EKF: landmark RMS {dc_ekf['landmark_rms_m']:.3g} m",
         f"batch reference: Levenberg-Marquardt from iSAM2's estimate, {batch['iterations']} iterations, "
-        f"{batch['seconds']:.3f} s, error {batch['error_from_isam2']:.6g} -> {batch['error']:.6g}",
+        f"{batch['seconds']:.3f} s, graph error {batch['error_from_isam2']:.6g} -> {batch['error']:.6g}",
         f"iSAM2's time includes {callback['evaluations']} Python evaluations of the point factor "
         f"({callback['seconds']:.3f} s measured inside them, plus call overhead)",
         "dcslam's estimate() includes the full covariance (robot and all landmarks); iSAM2's "
@@ -291,7 +300,7 @@ def print_report(report: Dict) -> None:
         notes.append(f"GTSAM joint marginal covariance of all landmarks (gtsam.Marginals): "
                      f"{report['isam2_landmark_marginals_seconds']:.3f} s extra")
     for note in notes:
-        print(note)
+        print(f"- {note}" if markdown else note)
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -301,6 +310,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument("--max-steps", type=int, default=None, help="use only the first N steps")
     parser.add_argument("--json", type=Path, default=None, help="also write the results to this JSON file")
     parser.add_argument("--no-marginals", action="store_true", help="skip timing GTSAM's landmark marginals")
+    parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
     args = parser.parse_args(argv)
     if gtsam is None:
         print("gtsam_compare: GTSAM is not installed; install it with 'pip install dcslam[gtsam]' "
@@ -310,7 +320,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         parser.error("--max-steps must be at least 1")
     path = args.file if args.file is not None else default_file()
     report = compare(path, args.max_steps, marginals=not args.no_marginals)
-    print_report(report)
+    print_report(report, markdown=args.markdown)
     if args.json is not None:
         args.json.write_text(json.dumps(report, indent=2) + "\n")
     return 0
