@@ -166,10 +166,10 @@ void DCSlam::run_amortized_budget() {
   if (queue_.empty()) return;
   double budget = 0.0;
   for (const auto& task : queue_) {
+    // A join not started yet: its fill before association (as MapJoin::remaining_work()).
+    const auto dim = static_cast<std::int64_t>(3 + 2 * task->result->expected_features);
     const std::int64_t remaining =
-        task->join ? task->join->remaining_work()
-                   : static_cast<std::int64_t>(3 + 2 * task->result->expected_features) *
-                         (3 + 2 * task->result->expected_features);
+        task->join ? task->join->remaining_work() : dim * (dim + 1) / 2 + 2 * dim;
     budget += static_cast<double>(remaining) /
               static_cast<double>(std::max<std::int64_t>(1, task->deadline_step - steps_));
   }

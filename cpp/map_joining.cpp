@@ -127,11 +127,10 @@ std::int64_t MapJoin::remaining_work() const {
   std::int64_t work = left * (left + 1) / 2 * fill_element_cost();
   const Index solve_rows = first_ ? first_->dim() - 3 + second_->dim() : 0;
   switch (phase_) {
-    case Phase::Associate: {
-      // Before association r is only bounded by the smaller map.
-      const std::int64_t r = std::min(first_->num_features(), second_->num_features());
-      return left * (left + 1) / 2 * (1 + (3 + 2 * r) / 8) + solve_rows * std::max<std::int64_t>(1, r * r / 4);
-    }
+    case Phase::Associate:
+      // r is unknown until association: counted as 0 here (the cost grows once the pairs are
+      // known; a later deadline absorbs that, where an upper bound would inflate every budget).
+      return work + static_cast<std::int64_t>(solve_rows);
     case Phase::Constrain:
       return work + static_cast<std::int64_t>(solve_rows) * solve_row_cost();
     case Phase::Solve:
