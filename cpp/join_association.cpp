@@ -16,22 +16,6 @@ namespace {
 
 using Index = Eigen::Index;
 
-// Measurement = feature j of the moved m2, feature = feature i of m1; the innovation of the
-// pairing is f'_j - f_i, whose covariance is P_ii + P_jj - P_ij - P_ji in the stacked map.
-class JoinPairingModel : public PairingModel {
- public:
-  explicit JoinPairingModel(const JoinFrame& frame) : frame_(frame) {}
-  Vec2 innovation(const Pairing& p) const override {
-    return frame_.moved_second_feature(p.measurement) - frame_.first_feature(p.feature);
-  }
-  Mat2 covariance(const Pairing& a, const Pairing& b) const override {
-    return frame_.constraint_covariance(a.feature, a.measurement, b.feature, b.measurement);
-  }
-
- private:
-  const JoinFrame& frame_;
-};
-
 double largest_std(const Mat2& covariance) {
   const double half_trace = 0.5 * covariance.trace();
   const double det = covariance.determinant();
@@ -53,6 +37,14 @@ double candidate_confidence(double gate_confidence) { return 1.0 - 0.1 * (1.0 - 
 }  // namespace
 
 constexpr int kJcbbFallbackOverlap = 30;
+
+Vec2 JoinPairingModel::innovation(const Pairing& p) const {
+  return frame_.moved_second_feature(p.measurement) - frame_.first_feature(p.feature);
+}
+
+Mat2 JoinPairingModel::covariance(const Pairing& a, const Pairing& b) const {
+  return frame_.constraint_covariance(a.feature, a.measurement, b.feature, b.measurement);
+}
 
 JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options) {
   const GaussianMap& m1 = frame.first();

@@ -9,9 +9,22 @@
 #include <utility>
 #include <vector>
 
+#include "dcslam/jcbb.hpp"
 #include "dcslam/map_joining.hpp"
 
 namespace dcslam {
+
+// Measurement = feature j of the moved m2, feature = feature i of m1; the innovation of the
+// pairing is f'_j - f_i, whose covariance is P_ii + P_jj - P_ij - P_ji in the stacked map.
+class JoinPairingModel : public PairingModel {
+ public:
+  explicit JoinPairingModel(const JoinFrame& frame) : frame_(frame) {}
+  Vec2 innovation(const Pairing& p) const override;
+  Mat2 covariance(const Pairing& a, const Pairing& b) const override;
+
+ private:
+  const JoinFrame& frame_;
+};
 
 struct JoinAssociationResult {
   std::vector<std::pair<Eigen::Index, Eigen::Index>> pairs;  // (i in m1, j in m2)

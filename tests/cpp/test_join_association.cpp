@@ -261,19 +261,6 @@ GaussianMap hand_built_map(const Vec3& robot, const Mat3& robot_covariance,
   return map;
 }
 
-class MovedSecondModel : public PairingModel {
- public:
-  explicit MovedSecondModel(const JoinFrame& frame) : frame_(frame) {}
-  Vec2 innovation(const Pairing& p) const override {
-    return frame_.moved_second_feature(p.measurement) - frame_.first_feature(p.feature);
-  }
-  Mat2 covariance(const Pairing& a, const Pairing& b) const override {
-    return frame_.constraint_covariance(a.feature, a.measurement, b.feature, b.measurement);
-  }
-
- private:
-  const JoinFrame& frame_;
-};
 
 TEST(JoinAssociation, NearestNeighbourPairsWronglyWhereJointCompatibilityDoesNot) {
   const std::vector<Vec2> landmarks = {{3, 0}, {5, 2}, {2, 4}, {6, -2}, {0, 3}, {4, 5}};
@@ -289,7 +276,7 @@ TEST(JoinAssociation, NearestNeighbourPairsWronglyWhereJointCompatibilityDoesNot
   const GaussianMap second = hand_built_map(Vec3(1, 0, 0), Mat3::Zero(), landmarks,
                                             {0, 1, 2, 3, 4, 5}, 0.05);
   const JoinFrame frame(first, second);
-  const MovedSecondModel model(frame);
+  const JoinPairingModel model(frame);
 
   CandidateLists all(static_cast<std::size_t>(second.num_features()));
   for (auto& list : all) {
