@@ -35,7 +35,9 @@ Eigen::MatrixXd GaussianMap::release_covariance() {
 void GaussianMap::reserve(Index dim) {
   if (dim <= capacity()) return;
   Index capacity = std::max<Index>(32, P_.rows());
-  while (capacity < dim) capacity *= 2;
+  // Growth by half: amortised O(1) copies per element, and storage at most 2.25x the
+  // covariance (doubling would allow 4x, P being square).
+  while (capacity < dim) capacity += capacity / 2;
   Eigen::VectorXd x = Eigen::VectorXd::Zero(capacity);
   Eigen::MatrixXd P = Eigen::MatrixXd::Zero(capacity, capacity);
   x.head(dim_) = x_.head(dim_);
