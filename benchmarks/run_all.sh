@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Runs the benchmarks recorded in BENCHMARKS.md; outputs (text and JSON) go to results/bench/.
-# Usage: bash benchmarks/run_all.sh [path/to/dcslam_bench]   (after tools/setup.sh)
+# Usage: bash benchmarks/run_all.sh [path/to/dcslam_bench]   (after tools/setup.sh; ~3 min)
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 bench=${1:-build/dev/benchmarks/dcslam_bench}
@@ -13,6 +13,7 @@ run() {  # name, arguments...
 }
 # EKF per-step cost up to 2,000+ features on the snail (issue 3).
 run ekf_snail sim --trajectory snail --steps 1150 --filter ekf
+run ekf_snail_large sim --trajectory snail --steps 2200 --filter ekf
 # EKF against D&C, known association, each trajectory at ~2,000 features (issue 5).
 for t in straight loop lawn_mowing snail; do
   steps=600; [[ $t == lawn_mowing || $t == snail ]] && steps=1150
