@@ -153,6 +153,9 @@ void DCSlam::push_and_merge(std::shared_ptr<Node> node) {
     event.index = task->index;
     event.leaves = task->result->leaves;
     event.step_created = steps_;
+    // Sizes as known now (a pending input counts its inputs' sum); exact once finished.
+    event.report.features_first = task->left->expected_features;
+    event.report.features_second = task->right->expected_features;
     events_.push_back(event);
     queue_.push_back(task);
     node = task->result;
