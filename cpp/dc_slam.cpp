@@ -139,26 +139,27 @@ void DCSlam::push_and_merge(std::shared_ptr<Node> node) {
     task->left = stack_.back();
     stack_.pop_back();
     task->right = std::move(node);
-    task->result = std::make_shared<Node>();
-    task->result->leaves = task->left->leaves + task->right->leaves;
-    task->result->expected_features =
+    auto result = std::make_shared<Node>();
+    task->result = result;
+    result->leaves = task->left->leaves + task->right->leaves;
+    result->expected_features =
         task->left->expected_features + task->right->expected_features;
-    task->result->task = task;
+    result->task = task;
     // The result is next needed when as many local maps again have been closed; finishing
     // within half that time leaves the other half for the joins that will wait on it.
     task->deadline_step =
         steps_ + std::max<std::int64_t>(1, static_cast<std::int64_t>(
-                                               0.5 * task->result->leaves * steps_per_local_map));
+                                               0.5 * result->leaves * steps_per_local_map));
     JoinEvent event;
     event.index = task->index;
-    event.leaves = task->result->leaves;
+    event.leaves = result->leaves;
     event.step_created = steps_;
     // Sizes as known now (a pending input counts its inputs' sum); exact once finished.
     event.report.features_first = task->left->expected_features;
     event.report.features_second = task->right->expected_features;
     events_.push_back(event);
     queue_.push_back(task);
-    node = task->result;
+    node = std::move(result);
   }
   stack_.push_back(std::move(node));
   lock.unlock();
@@ -170,7 +171,7 @@ void DCSlam::run_amortized_budget() {
   double budget = 0.0;
   for (const auto& task : queue_) {
     // A join not started yet: its fill before association (as MapJoin::remaining_work()).
-    const auto dim = static_cast<std::int64_t>(3 + 2 * task->result->expected_features);
+    const auto dim = static_cast<std::int64_t>(3 + 2 * task->result.lock()->expected_features);
     const std::int64_t remaining =
         task->join ? task->join->remaining_work() : dim * (dim + 1) / 2 + 2 * dim;
     budget += static_cast<double>(remaining) /
@@ -204,9 +205,10 @@ void DCSlam::complete(JoinTask& task) {
   for (const auto& [from, to] : task.join->merged_ids()) {
     if (from != to) merged_into_[from] = to;
   }
-  task.result->map = std::move(map);
-  task.result->expected_features = task.result->map->num_features();
-  task.result->task.reset();
+  const std::shared_ptr<Node> result = task.result.lock();
+  result->map = std::move(map);
+  result->expected_features = result->map->num_features();
+  result->task.reset();
   task.left.reset();
   task.right.reset();
 }

@@ -74,7 +74,10 @@ class DCSlam : public SlamFilter {
   };
   struct JoinTask {
     int index = 0;
-    std::shared_ptr<Node> left, right, result;
+    std::shared_ptr<Node> left, right;
+    // The node this join completes. Weak: the node owns the task while the join is pending,
+    // and a strong link back would keep joins still queued at destruction alive forever.
+    std::weak_ptr<Node> result;
     std::unique_ptr<MapJoin> join;
     std::int64_t deadline_step = 0;
   };

@@ -220,7 +220,9 @@ TEST(Simulator, SameSeedSameRunOtherSeedOtherRun) {
   EXPECT_EQ(a.true_ids, b.true_ids);
   config.seed = 1;
   const Simulation c = simulate(config);
-  EXPECT_NE(a.landmarks, c.landmarks);
+  // Another seed may place another number of landmarks: compare sizes before contents.
+  EXPECT_TRUE(a.landmarks.rows() != c.landmarks.rows() || a.landmarks != c.landmarks);
+  ASSERT_EQ(a.odometry.rows(), c.odometry.rows());
   EXPECT_NE(a.odometry, c.odometry);
 }
 
