@@ -49,7 +49,7 @@ def selfcheck(samples: int = typer.Option(200, help="Random inputs per function.
     for name, error in geometry_errors(samples):
         ok = error < 1e-5
         failed |= not ok
-        table.add_row(name, f"{error:.2e}", "[green]ok" if ok else "[red]FAIL")
+        table.add_row(escape(name), f"{error:.2e}", "[green]ok" if ok else "[red]FAIL")
     console.print(table)
     if failed:
         raise typer.Exit(code=1)
