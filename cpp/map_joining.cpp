@@ -118,8 +118,8 @@ std::int64_t MapJoin::solve_row_cost() const {
 
 std::int64_t MapJoin::remaining_work() const {
   if (phase_ == Phase::Done) return 0;
-  // The fill writes the lower triangle of the columns not yet done; the solve (once the
-  // pairs are known) costs about r units a row.
+  // The fill writes the lower triangle of the columns not yet done; the solve, once the
+  // pairs are known, costs solve_row_cost() a row.
   const Index out_dim = phase_ == Phase::Fill
                             ? result_.dim()
                             : first_->dim() + second_->dim() - GaussianMap::kRobotDim;
