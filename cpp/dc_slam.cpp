@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <unordered_set>
 
 namespace dcslam {
 
@@ -23,6 +24,31 @@ std::shared_ptr<const GaussianMap> compact_copy(const GaussianMap& map) {
   copy->P() = map.P();
   copy->ids() = map.ids();
   return copy;
+}
+
+// Indices in `map` of the features whose ids are in `ids`.
+std::vector<Eigen::Index> feature_indices(const GaussianMap& map,
+                                          const std::vector<std::int64_t>& ids) {
+  const std::unordered_set<std::int64_t> wanted(ids.begin(), ids.end());
+  std::vector<Eigen::Index> indices;
+  for (std::size_t k = 0; k < map.ids().size(); ++k) {
+    if (wanted.count(map.ids()[k]) != 0) indices.push_back(static_cast<Eigen::Index>(k));
+  }
+  return indices;
+}
+
+// The tentative features of a join's result: m2's, except those merged into an m1 feature
+// (seen in both maps, so confirmed). m1's tentative features are either confirmed the same
+// way or dropped by the join.
+std::vector<std::int64_t> joined_tentative_ids(const std::vector<std::int64_t>& second_tentative,
+                                               const MapJoin& join) {
+  std::unordered_set<std::int64_t> merged;
+  for (const auto& [from, to] : join.merged_ids()) merged.insert(from);
+  std::vector<std::int64_t> ids;
+  for (std::int64_t id : second_tentative) {
+    if (merged.count(id) == 0) ids.push_back(id);
+  }
+  return ids;
 }
 
 Estimate to_estimate(GaussianMap map) {
@@ -105,14 +131,16 @@ std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::ve
 }
 
 void DCSlam::close_local_map() {
-  local_->prune_tentative();
   {
-    // Ids of the local map's removed tentative features resolve to -1 from now on.
+    // Ids of the tentative features the local map removed as expired resolve to -1 from now on.
     std::lock_guard<std::mutex> lock(mutex_);
     for (std::int64_t id : local_->removed_ids()) merged_into_[id] = -1;
   }
   auto node = std::make_shared<Node>();
   node->map = compact_copy(local_->map());
+  // Features seen once stay: a landmark first seen in the map's last steps is seen again by
+  // the next map, and the join that meets it keeps the feature only if it matches.
+  node->tentative_ids = local_->tentative_ids();
   node->expected_features = node->map->num_features();
   const std::int64_t next_id = local_->next_fresh_id();
   local_ = std::make_unique<EkfSlam>(config_);
@@ -188,8 +216,9 @@ void DCSlam::run_amortized_budget() {
 
 std::int64_t DCSlam::work_on(JoinTask& task, std::int64_t budget) {
   if (!task.join) {
-    task.join = std::make_unique<MapJoin>(task.left->map, task.right->map,
-                                          join_options(task.index));
+    task.join = std::make_unique<MapJoin>(
+        task.left->map, task.right->map, join_options(task.index),
+        feature_indices(*task.left->map, task.left->tentative_ids));
   }
   const std::int64_t spent = task.join->advance(budget);
   if (task.join->done()) complete(task);
@@ -198,6 +227,7 @@ std::int64_t DCSlam::work_on(JoinTask& task, std::int64_t budget) {
 
 void DCSlam::complete(JoinTask& task) {
   auto map = std::make_shared<const GaussianMap>(task.join->take_result());
+  std::vector<std::int64_t> tentative = joined_tentative_ids(task.right->tentative_ids, *task.join);
   std::lock_guard<std::mutex> lock(mutex_);
   JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
   event.report = task.join->report();
@@ -205,7 +235,9 @@ void DCSlam::complete(JoinTask& task) {
   for (const auto& [from, to] : task.join->merged_ids()) {
     if (from != to) merged_into_[from] = to;
   }
+  for (std::int64_t id : task.join->dropped_ids()) merged_into_[id] = -1;
   const std::shared_ptr<Node> result = task.result.lock();
+  result->tentative_ids = std::move(tentative);
   result->map = std::move(map);
   result->expected_features = result->map->num_features();
   result->task.reset();
@@ -245,20 +277,24 @@ void DCSlam::finish_joins() {
   }
 }
 
-std::shared_ptr<const GaussianMap> DCSlam::materialize(const std::shared_ptr<Node>& node) const {
+DCSlam::NodeMap DCSlam::materialize(const std::shared_ptr<Node>& node) const {
   std::shared_ptr<Node> left, right;
   int index = 0;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    if (node->map) return node->map;
+    if (node->map) return NodeMap{node->map, node->tentative_ids};
     left = node->task->left;
     right = node->task->right;
     index = node->task->index;
   }
   // Same inputs and options as the real join: the same result, computed on the side.
-  MapJoin join(materialize(left), materialize(right), join_options(index));
+  NodeMap first = materialize(left);
+  NodeMap second = materialize(right);
+  MapJoin join(first.map, second.map, join_options(index),
+               feature_indices(*first.map, first.tentative_ids));
   join.finish();
-  return std::make_shared<const GaussianMap>(join.take_result());
+  return NodeMap{std::make_shared<const GaussianMap>(join.take_result()),
+                 joined_tentative_ids(second.tentative_ids, join)};
 }
 
 Estimate DCSlam::estimate() const {
@@ -268,10 +304,14 @@ Estimate DCSlam::estimate() const {
     stack = stack_;
   }
   auto joined = std::make_shared<GaussianMap>(*compact_copy(local_->map()));
-  // Join everything on the stack, top first, as Algorithm 2 does at the end of the run.
+  // Join everything on the stack, top first, as Algorithm 2 does at the end of the run. The
+  // local map's tentative features stay (it may still see them again); the stack's maps lose
+  // those the maps after them do not match.
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     const int index = -1 - static_cast<int>(it - stack.rbegin());
-    MapJoin join(materialize(*it), std::move(joined), join_options(index));
+    NodeMap first = materialize(*it);
+    MapJoin join(first.map, std::move(joined), join_options(index),
+                 feature_indices(*first.map, first.tentative_ids));
     join.finish();  // releases its inputs: at most the inputs and the result are alive
     joined = std::make_shared<GaussianMap>(join.take_result());
   }

@@ -63,6 +63,15 @@ void EkfSlam::prune_tentative() {
   remove_tentative([](const Track&) { return true; });
 }
 
+std::vector<std::int64_t> EkfSlam::tentative_ids() const {
+  std::vector<std::int64_t> ids;
+  if (!tentative_policy()) return ids;
+  for (std::size_t k = 0; k < tracks_.size(); ++k) {
+    if (tracks_[k].sightings < config_.min_sightings) ids.push_back(map_.ids()[k]);
+  }
+  return ids;
+}
+
 StepStats& EkfSlam::current_step() {
   // An update before any predict belongs to an implicit first step.
   if (stats_.steps.empty()) stats_.steps.emplace_back();

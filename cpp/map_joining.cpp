@@ -96,9 +96,19 @@ std::vector<std::pair<Index, Index>> associate_by_id(const GaussianMap& first,
 
 // ---------------------------------------------------------------------------------------
 MapJoin::MapJoin(std::shared_ptr<const GaussianMap> first,
-                 std::shared_ptr<const GaussianMap> second, JoinOptions options)
-    : first_(std::move(first)), second_(std::move(second)), options_(options) {
+                 std::shared_ptr<const GaussianMap> second, JoinOptions options,
+                 std::vector<Index> first_tentative)
+    : first_(std::move(first)),
+      second_(std::move(second)),
+      options_(options),
+      first_tentative_(std::move(first_tentative)) {
   if (!first_ || !second_) throw InvalidArgument("MapJoin: both maps are required");
+  for (Index i : first_tentative_) {
+    if (i < 0 || i >= first_->num_features()) {
+      throw InvalidArgument("MapJoin: tentative feature index " + std::to_string(i) +
+                            " out of range");
+    }
+  }
   options_.block_columns = std::max<Index>(2, options_.block_columns & ~Index{1});
   report_.features_first = first_->num_features();
   report_.features_second = second_->num_features();
@@ -215,6 +225,26 @@ void MapJoin::associate() {
     merged_ids_.emplace_back(m2.ids()[static_cast<std::size_t>(j)],
                              m1.ids()[static_cast<std::size_t>(i)]);
   }
+
+  // m1's tentative features that nothing in m2 confirms are dropped: deleting their rows and
+  // columns is their exact marginal, and the constraints never involve them.
+  std::vector<char> dropped(static_cast<std::size_t>(m1.num_features()), 0);
+  for (Index i : first_tentative_) dropped[static_cast<std::size_t>(i)] = 1;
+  for (const auto& pair : pairs_) dropped[static_cast<std::size_t>(pair.first)] = 0;
+  first_kept_rows_.clear();
+  first_kept_ids_.clear();
+  dropped_ids_.clear();
+  for (Index i = 0; i < m1.num_features(); ++i) {
+    const std::int64_t id = m1.ids()[static_cast<std::size_t>(i)];
+    if (dropped[static_cast<std::size_t>(i)]) {
+      dropped_ids_.push_back(id);
+      continue;
+    }
+    first_kept_rows_.push_back(GaussianMap::feature_offset(i));
+    first_kept_rows_.push_back(GaussianMap::feature_offset(i) + 1);
+    first_kept_ids_.push_back(id);
+  }
+  report_.dropped_tentative = static_cast<int>(dropped_ids_.size());
 }
 
 // Kept elements of m2 and the constraints' P H', S = L L' and L^-1 h (O(n r + r^3)).
@@ -235,12 +265,12 @@ void MapJoin::constrain() {
   std::vector<char> matched(static_cast<std::size_t>(n2), 0);
   for (const auto& pair : pairs_) matched[static_cast<std::size_t>(pair.second)] = 1;
   second_kept_rows_ = {0, 1, 2};
-  kept_ids_.clear();
+  second_kept_ids_.clear();
   for (Index j = 0; j < n2; ++j) {
     if (matched[static_cast<std::size_t>(j)]) continue;
     second_kept_rows_.push_back(GaussianMap::feature_offset(j));
     second_kept_rows_.push_back(GaussianMap::feature_offset(j) + 1);
-    kept_ids_.push_back(m2.ids()[static_cast<std::size_t>(j)]);
+    second_kept_ids_.push_back(m2.ids()[static_cast<std::size_t>(j)]);
   }
   const Index d2k = static_cast<Index>(second_kept_rows_.size());
   J_R_kept_.resize(d2k, 3);
@@ -305,31 +335,38 @@ void MapJoin::assemble() {
   const GaussianMap& m1 = *first_;
   const GaussianMap& m2 = *second_;
   const JoinFrame frame(m1, m2);
-  const Index n1 = m1.num_features();
+  const Index d1k = static_cast<Index>(first_kept_rows_.size());
   const Index r = static_cast<Index>(pairs_.size());
   const Index d2k = static_cast<Index>(second_kept_rows_.size());
   const auto P1 = m1.P();
   const Mat3 P1_RR = P1.topLeftCorner<3, 3>();
-  const auto A1 = P1.block(3, 0, 2 * n1, 3);  // cov(F1, R1)
-  const auto W_first = gain_.topRows(2 * n1);
+  Eigen::MatrixXd A1(d1k, 3);  // cov(F1 kept, R1)
+  Eigen::MatrixXd W_first(d1k, 2 * r);
+  Eigen::VectorXd x_first(d1k);
+  for (Index a = 0; a < d1k; ++a) {
+    const Index row = first_kept_rows_[static_cast<std::size_t>(a)];
+    A1.row(a) = P1.block<1, 3>(row, 0);
+    W_first.row(a) = gain_.row(row - 3);
+    x_first(a) = m1.x()(row);
+  }
+  const Index n1 = m1.num_features();
   Eigen::MatrixXd W_second_kept(d2k, 2 * r);
   for (Index a = 0; a < d2k; ++a) {
     W_second_kept.row(a) = gain_.row(2 * n1 + second_kept_rows_[static_cast<std::size_t>(a)]);
   }
   const Eigen::VectorXd& v = whitened_h_;
 
-  // The result: [R2'; F1; F2' unmatched], means corrected by the constraints.
-  const Index n2k = (d2k - 3) / 2;
-  const Index out_dim = 3 + 2 * n1 + 2 * n2k;
+  // The result: [R2'; F1 kept; F2' unmatched], means corrected by the constraints.
+  const Index out_dim = 3 + d1k + (d2k - 3);
   result_ = GaussianMap::uninitialized(out_dim);
   auto x = result_.x();
   Vec3 robot = frame.moved_second_robot() - W_second_kept.topRows<3>() * v;
   robot.z() = wrap_angle(robot.z());
   x.head<3>() = robot;
-  x.segment(3, 2 * n1) = m1.x().tail(2 * n1) - W_first * v;
+  x.segment(3, d1k) = x_first - W_first * v;
   for (Index a = 3; a < d2k; a += 2) {
     const Index j = (second_kept_rows_[static_cast<std::size_t>(a)] - 3) / 2;
-    x.segment<2>(3 + 2 * n1 + (a - 3)) =
+    x.segment<2>(3 + d1k + (a - 3)) =
         frame.moved_second_feature(j) - W_second_kept.middleRows<2>(a) * v;
   }
 
@@ -342,19 +379,20 @@ void MapJoin::assemble() {
     left_.block(out_row, 3 + k, rows, 3) = J_R_kept_.middleRows(local_row, rows);
   };
   put_second_rows(0, 0, 3);
-  put_second_rows(3 + 2 * n1, 3, d2k - 3);
-  left_.block(3, 0, 2 * n1, 3) = A1;
-  left_.block(3, 3, 2 * n1, k) = W_first;
-  left_.block(3, 3 + k, 2 * n1, 3).setZero();
+  put_second_rows(3 + d1k, 3, d2k - 3);
+  left_.block(3, 0, d1k, 3) = A1;
+  left_.block(3, 3, d1k, k) = W_first;
+  left_.block(3, 3 + k, d1k, 3).setZero();
   right_second_.resize(d2k, 3 + k);
   right_second_ << J_R_kept_, -W_second_kept;
-  right_first_.resize(2 * n1, 3 + k);
+  right_first_.resize(d1k, 3 + k);
   right_first_ << -W_first, A1;
   gain_ = Eigen::MatrixXd();
 
   auto& ids = result_.ids();
-  std::copy(m1.ids().begin(), m1.ids().end(), ids.begin());
-  std::copy(kept_ids_.begin(), kept_ids_.end(), ids.begin() + static_cast<std::ptrdiff_t>(n1));
+  std::copy(first_kept_ids_.begin(), first_kept_ids_.end(), ids.begin());
+  std::copy(second_kept_ids_.begin(), second_kept_ids_.end(),
+            ids.begin() + static_cast<std::ptrdiff_t>(first_kept_ids_.size()));
   report_.features_joined = result_.num_features();
   next_out_col_ = 0;
 }
@@ -412,11 +450,23 @@ void MapJoin::write_moved_second_block(Index row_begin, Index rows, Index col_be
   result_.P().block(out_row, out_col, rows, width) = scratch_;
 }
 
+void MapJoin::write_first_block(Index row_begin, Index rows, Index col_begin, Index width,
+                                Index out_row, Index out_col) {
+  const auto P1 = first_->P();
+  auto out = result_.P().block(out_row, out_col, rows, width);
+  for (Index b = 0; b < width; ++b) {
+    const Index src_col = first_kept_rows_[static_cast<std::size_t>(col_begin + b)];
+    for (Index a = 0; a < rows; ++a) {
+      out(a, b) = P1(first_kept_rows_[static_cast<std::size_t>(row_begin + a)], src_col);
+    }
+  }
+}
+
 // One block of columns [col, col + width): the lower part (rows >= col) is computed as
 // base + L N', then mirrored into the rows above the diagonal of later columns.
 std::int64_t MapJoin::fill_next_block() {
-  const Index n1 = first_->num_features();
-  const Index first_end = 3 + 2 * n1;
+  const Index d1k = static_cast<Index>(first_kept_rows_.size());
+  const Index first_end = 3 + d1k;
   const Index out_dim = result_.dim();
   const Index k = static_cast<Index>(right_first_.cols()) - 3;
   const Index col = next_out_col_;
@@ -426,14 +476,14 @@ std::int64_t MapJoin::fill_next_block() {
     width = 3;
     const Index kept_features = out_dim - first_end;
     write_moved_second_block(0, 3, 0, 3, 0, 0);
-    out.block(3, 0, 2 * n1, 3).setZero();
+    out.block(3, 0, d1k, 3).setZero();
     write_moved_second_block(3, kept_features, 0, 3, first_end, 0);
     out.block(0, 0, out_dim, 3).noalias() +=
         left_.leftCols(3 + k) * right_second_.topRows(3).transpose();
   } else if (col < first_end) {  // m1's features: base P1 on F1's rows, 0 on m2's
     width = std::min(options_.block_columns, first_end - col);
-    const Index begin = col - 3;  // feature coordinate within F1
-    out.block(col, col, first_end - col, width) = first_->P().block(col, col, first_end - col, width);
+    const Index begin = col - 3;  // coordinate within F1 kept
+    write_first_block(begin, first_end - col, begin, width, col, col);
     out.block(first_end, col, out_dim - first_end, width).setZero();
     out.block(col, col, out_dim - col, width).noalias() +=
         left_.rightCols(3 + k).middleRows(col, out_dim - col) *

@@ -70,6 +70,9 @@ class DCSlam : public SlamFilter {
     int leaves = 1;
     std::int64_t expected_features = 0;
     std::shared_ptr<const GaussianMap> map;  // set once complete
+    // Features of `map` seen only once (set with it): the join with the next map drops those
+    // it does not match.
+    std::vector<std::int64_t> tentative_ids;
     std::shared_ptr<JoinTask> task;          // set while pending
   };
   struct JoinTask {
@@ -90,8 +93,12 @@ class DCSlam : public SlamFilter {
   void complete(JoinTask& task);
   void worker_loop();
   JoinOptions join_options(int index) const;
+  struct NodeMap {
+    std::shared_ptr<const GaussianMap> map;
+    std::vector<std::int64_t> tentative_ids;
+  };
   // The map of `node`, computing pending joins on copies (never touching the real tasks).
-  std::shared_ptr<const GaussianMap> materialize(const std::shared_ptr<Node>& node) const;
+  NodeMap materialize(const std::shared_ptr<Node>& node) const;
   Vec3 node_robot(const Node& node) const;
   void begin_step();
   void end_step(double seconds);

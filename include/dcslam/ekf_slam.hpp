@@ -42,10 +42,11 @@ class EkfSlam : public SlamFilter {
 
   const SlamConfig& config() const { return config_; }
   const GaussianMap& map() const { return map_; }
-  // Removes every tentative feature now (D&C calls it before closing a local map, so that
-  // joins only see confirmed features). Does nothing when the policy is off ("known" mode or
+  // Removes every tentative feature now. Does nothing when the policy is off ("known" mode or
   // min_sightings = 1). O(n) per removed feature.
   void prune_tentative();
+  // Ids of the features that are tentative now (empty when the policy is off). O(n).
+  std::vector<std::int64_t> tentative_ids() const;
   // Ids of the features removed so far by the spurious-measurement policy.
   const std::unordered_set<std::int64_t>& removed_ids() const { return removed_ids_; }
 

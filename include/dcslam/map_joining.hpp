@@ -1,7 +1,7 @@
 #pragma once
 // Map joining 2.0 (DESIGN.md §4; Paz et al. 2007 §III): join a map m1 (base B1, robot R1)
 // with the next map m2 (base B2 = R1, robot R2) into one map with base B1, robot R2 and
-// features m1 ∪ (m2 \ matched).
+// features (m1 \ unmatched tentative) ∪ (m2 \ matched).
 //
 // The join is computed as one fused pass: the stacked covariance of [m1; m2 moved into B1]
 // is never built. Its blocks are produced on demand from P1, P2 and the Jacobians of ⊕, the
@@ -40,6 +40,7 @@ struct JoinReport {
   int overlap = 0;   // features of m2 with at least one individually compatible candidate
   int pairings = 0;  // matched pairs imposed as constraints
   int tries = 0;     // RJC hypotheses tried (0 for other modes)
+  int dropped_tentative = 0;  // m1's tentative features no m2 feature matched (marginalised)
   double seconds_association = 0.0;
   double seconds_total = 0.0;  // summed over all the slices the join was run in
   std::int64_t work_units = 0;  // covariance elements written plus association/preparation
@@ -92,9 +93,11 @@ class MapJoin {
   using Pairs = std::vector<std::pair<Eigen::Index, Eigen::Index>>;
 
   // The inputs are shared and never modified (an anytime estimate may join copies of the same
-  // inputs while the real join is pending).
+  // inputs while the real join is pending). `first_tentative` lists m1's features (indices,
+  // no duplicates) seen only once: those no m2 feature matches are marginalised out of the
+  // result (their rows and columns are not written), the others are confirmed by the match.
   MapJoin(std::shared_ptr<const GaussianMap> first, std::shared_ptr<const GaussianMap> second,
-          JoinOptions options);
+          JoinOptions options, std::vector<Eigen::Index> first_tentative = {});
 
   // Does at least one unit of work (if not done) and stops once `budget` work units are
   // spent. Returns the work done.
@@ -109,6 +112,8 @@ class MapJoin {
   const JoinReport& report() const { return report_; }
   // (id in m2, id in m1) for every matched pair: the m2 feature merged into the m1 one.
   std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids() const;
+  // Ids of m1's tentative features marginalised out of the result; known once associated.
+  const std::vector<std::int64_t>& dropped_ids() const { return dropped_ids_; }
 
  private:
   enum class Phase { Associate, Constrain, Solve, Assemble, Fill, Done };
@@ -121,6 +126,10 @@ class MapJoin {
   // local columns [col_begin, col_begin + width), into the output at (out_row, out_col).
   void write_moved_second_block(Eigen::Index row_begin, Eigen::Index rows, Eigen::Index col_begin,
                                 Eigen::Index width, Eigen::Index out_row, Eigen::Index out_col);
+  // Writes P1 for m1's kept features, local rows [row_begin, row_begin + rows) x local columns
+  // [col_begin, col_begin + width) (indices into first_kept_rows_), at (out_row, out_col).
+  void write_first_block(Eigen::Index row_begin, Eigen::Index rows, Eigen::Index col_begin,
+                         Eigen::Index width, Eigen::Index out_row, Eigen::Index out_col);
   // J_2 from the left (rows) or J_2' from the right (columns) on a block of m2's kept
   // elements starting at local index `local_begin` (0: the robot; odd: a feature pair).
   void rotate_second_rows(Eigen::Ref<Eigen::MatrixXd> block, Eigen::Index local_begin) const;
@@ -134,15 +143,19 @@ class MapJoin {
   Phase phase_ = Phase::Associate;
   JoinReport report_;
   Pairs pairs_;
+  std::vector<Eigen::Index> first_tentative_;
   std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids_;
+  std::vector<std::int64_t> dropped_ids_;
 
   // Prepared for the fill. Every block of the result is a "base" (a block of P1, or of
   // J_2 P2 J_2') plus a low-rank term L N' with inner dimension 3 + 2r:
   //   columns of m2's kept elements: L = [J_R P1_RR or cov(F1, R1) | W], N = [J_R | -W];
   //   columns of m1's features:      L = [W | J_R or 0],               N = [-W | cov(F1, R1)].
   // left_ holds [JP | W | J] in output row order; right_* hold N for each column kind.
+  std::vector<Eigen::Index> first_kept_rows_;   // rows of P1: m1's features not dropped
+  std::vector<std::int64_t> first_kept_ids_;
   std::vector<Eigen::Index> second_kept_rows_;  // m2's robot rows, then unmatched features
-  std::vector<std::int64_t> kept_ids_;
+  std::vector<std::int64_t> second_kept_ids_;
   Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_kept_;  // rows of J_R for the kept elements
   Eigen::MatrixXd gain_;               // P H' (rows: F1, then all of m2), then W in place
   Eigen::MatrixXd constraint_factor_;  // L, S = L L'

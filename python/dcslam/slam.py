@@ -210,7 +210,8 @@ class DCSlam(SlamFilter):
     Data association at joins: ``cfg.join_association`` (``"rjc"``, ``"jcbb"`` or
     ``"known"``); :meth:`resolve` maps the id of a feature merged at a join to the feature
     that holds it now, and the id of a tentative feature removed by the spurious-measurement
-    policy (see :class:`EkfSlam`; a local map is closed without its tentative features) to -1.
+    policy to -1 (see :class:`EkfSlam`; a closed local map keeps its tentative features, and
+    the join with the next map drops those no feature of it matches).
     """
 
     def __init__(self, cfg: Optional[SlamConfig] = None):

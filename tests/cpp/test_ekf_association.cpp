@@ -309,7 +309,9 @@ TEST(EkfSlamTentative, UnconfirmedFeaturesAreRemovedAndResolveToMinusOne) {
 }
 
 // D&C: a local map is closed without its tentative features, whose ids resolve to -1.
-TEST(EkfSlamTentative, DcSlamClosesLocalMapsWithoutTentativeFeatures) {
+// A closed local map keeps its features seen once: the join with the next map keeps those it
+// matches (confirmed) and drops the others.
+TEST(EkfSlamTentative, DcSlamKeepsTentativeFeaturesUntilTheNextMapJoin) {
   SlamConfig config;
   config.observation = ObservationModel::Point;
   config.association = Association::Jcbb;
@@ -319,10 +321,18 @@ TEST(EkfSlamTentative, DcSlamClosesLocalMapsWithoutTentativeFeatures) {
   const std::vector<Mat2> R{Mat2::Identity() * 1e-4};
   MeasurementMatrix z(2, 2);
   z << 2.0, 0.0, 0.0, 3.0;
-  const auto ids = slam.update(z, R, nullptr);
+  const auto first_ids = slam.update(z, R, nullptr);
   EXPECT_EQ(slam.local_map().map().num_features(), 0);
-  EXPECT_EQ(slam.resolve(ids), (std::vector<std::int64_t>{-1, -1}));
+  EXPECT_EQ(slam.resolve(first_ids), first_ids);
+  // The estimate joins the closed map with the empty current one, which confirms nothing.
   EXPECT_EQ(slam.estimate().landmark_ids.size(), 0u);
+  // The next local map sees both again: the join merges them into the first map's features.
+  const auto second_ids = slam.update(z, R, nullptr);
+  ASSERT_EQ(slam.joins().size(), 1u);
+  EXPECT_EQ(slam.joins()[0].report.pairings, 2);
+  EXPECT_EQ(slam.joins()[0].report.dropped_tentative, 0);
+  EXPECT_EQ(slam.resolve(second_ids), first_ids);
+  EXPECT_EQ(slam.estimate().landmark_ids, first_ids);
 }
 
 }  // namespace

@@ -5,6 +5,7 @@
 #include <Eigen/LU>
 #include <gtest/gtest.h>
 
+#include "dcslam/errors.hpp"
 #include "dcslam/map_joining.hpp"
 
 namespace dcslam {
@@ -28,10 +29,12 @@ GaussianMap random_map(std::mt19937_64& rng, const std::vector<std::int64_t>& id
 }
 
 // The textbook join of DESIGN.md §4, dense: stack, move m2 with the full Jacobian, impose the
-// matched pairs with an EKF update (S = H P H', no R), then drop R1 and the matched f'_j and
-// reorder to [R2'; F1; F2' unmatched].
+// matched pairs with an EKF update (S = H P H', no R), then drop R1, the matched f'_j and
+// the m1 features in `dropped_first` (marginalising = deleting rows and columns of the
+// updated P) and reorder to [R2'; F1 kept; F2' unmatched].
 GaussianMap dense_join(const GaussianMap& m1, const GaussianMap& m2,
-                       const std::vector<std::pair<Index, Index>>& pairs) {
+                       const std::vector<std::pair<Index, Index>>& pairs,
+                       const std::set<Index>& dropped_first = {}) {
   const Index d1 = m1.dim(), d2 = m2.dim(), D = d1 + d2;
   const Vec3 T = m1.robot();
   Eigen::VectorXd z(D);
@@ -71,6 +74,7 @@ GaussianMap dense_join(const GaussianMap& m1, const GaussianMap& m2,
   std::vector<Index> order = {d1, d1 + 1, d1 + 2};
   std::vector<std::int64_t> ids;
   for (Index i = 0; i < m1.num_features(); ++i) {
+    if (dropped_first.count(i)) continue;
     order.push_back(3 + 2 * i);
     order.push_back(4 + 2 * i);
     ids.push_back(m1.ids()[i]);
@@ -131,6 +135,51 @@ INSTANTIATE_TEST_SUITE_P(Cases, MapJoiningTest,
                                            JoinCase{12, 9, 3, 2}, JoinCase{12, 9, 3, 6},
                                            JoinCase{20, 20, 10, 4}, JoinCase{0, 6, 0, 4},
                                            JoinCase{6, 0, 0, 4}, JoinCase{1, 1, 1, 2}));
+
+// m1's tentative features: those matched by an m2 feature stay, the others are marginalised.
+class MapJoiningTentativeTest : public ::testing::TestWithParam<Index> {};
+
+TEST_P(MapJoiningTentativeTest, DropsUnmatchedTentativeFeaturesOfTheFirstMapExactly) {
+  std::mt19937_64 rng(42);
+  std::vector<std::int64_t> ids1, ids2;
+  for (int i = 0; i < 14; ++i) ids1.push_back(i);
+  for (int j = 0; j < 10; ++j) ids2.push_back(j < 4 ? 3 * j : 100 + j);  // 0, 3, 6, 9 shared
+  std::shuffle(ids2.begin(), ids2.end(), rng);
+  const auto m1 = std::make_shared<const GaussianMap>(random_map(rng, ids1));
+  const auto m2 = std::make_shared<const GaussianMap>(random_map(rng, ids2));
+  // Tentative: 3 and 9 (matched, so confirmed); 1, 7, 8 and the last feature 13 (unmatched,
+  // dropped; given out of order).
+  const std::vector<Index> tentative = {13, 3, 7, 9, 8, 1};
+  const std::set<Index> dropped = {1, 7, 8, 13};
+  JoinOptions options;
+  options.block_columns = GetParam();
+  MapJoin at_once(m1, m2, options, tentative);
+  at_once.finish();
+  EXPECT_EQ(at_once.report().pairings, 4);
+  EXPECT_EQ(at_once.report().dropped_tentative, 4);
+  EXPECT_EQ(at_once.dropped_ids(), (std::vector<std::int64_t>{1, 7, 8, 13}));
+  MapJoin sliced(m1, m2, options, tentative);
+  while (!sliced.done()) sliced.advance(20);
+  const GaussianMap a = at_once.take_result(), b = sliced.take_result();
+  EXPECT_EQ(a.num_features(), 14 - 4 + 10 - 4);
+  expect_maps_equal(a, dense_join(*m1, *m2, associate_by_id(*m1, *m2), dropped), 1e-9);
+  EXPECT_TRUE(a.P().isApprox(a.P().transpose(), 1e-12));
+  EXPECT_EQ(a.ids(), b.ids());
+  EXPECT_TRUE((a.x().array() == b.x().array()).all());
+  EXPECT_TRUE((a.P().array() == b.P().array()).all());
+}
+
+INSTANTIATE_TEST_SUITE_P(BlockColumns, MapJoiningTentativeTest, ::testing::Values(2, 4, 6, 64));
+
+TEST(MapJoining, EveryFeatureOfTheFirstMapTentativeAndUnmatched) {
+  std::mt19937_64 rng(9);
+  const auto m1 = std::make_shared<const GaussianMap>(random_map(rng, {0, 1, 2}));
+  const auto m2 = std::make_shared<const GaussianMap>(random_map(rng, {10, 11}));
+  MapJoin join(m1, m2, JoinOptions{}, {0, 1, 2});
+  join.finish();
+  expect_maps_equal(join.take_result(), dense_join(*m1, *m2, {}, {0, 1, 2}), 1e-9);
+  EXPECT_THROW(MapJoin(m1, m2, JoinOptions{}, {3}), InvalidArgument);
+}
 
 TEST(JoinFrame, CovarianceBlocksEqualTheDenseStackedCovariance) {
   std::mt19937_64 rng(77);
