@@ -304,14 +304,13 @@ Estimate DCSlam::estimate() const {
     stack = stack_;
   }
   auto joined = std::make_shared<GaussianMap>(*compact_copy(local_->map()));
-  // Join everything on the stack, top first, as Algorithm 2 does at the end of the run. The
-  // local map's tentative features stay (it may still see them again); the stack's maps lose
-  // those the maps after them do not match.
+  // Join everything on the stack, top first, as Algorithm 2 does at the end of the run.
+  // Tentative features all stay, as in the EKF's estimate: the maps after them may not have
+  // had their chance to confirm them yet (and resolve() still points at them).
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     const int index = -1 - static_cast<int>(it - stack.rbegin());
     NodeMap first = materialize(*it);
-    MapJoin join(first.map, std::move(joined), join_options(index),
-                 feature_indices(*first.map, first.tentative_ids));
+    MapJoin join(first.map, std::move(joined), join_options(index));
     join.finish();  // releases its inputs: at most the inputs and the result are alive
     joined = std::make_shared<GaussianMap>(join.take_result());
   }

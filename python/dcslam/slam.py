@@ -119,7 +119,9 @@ class SlamFilter:
         """Maps ids ever returned by :meth:`update` to the feature holding them now.
 
         -1 stays -1; the id of a feature removed as spurious (a tentative feature, see
-        :class:`EkfSlam`) becomes -1.
+        :class:`EkfSlam`) becomes -1. For :class:`DCSlam`, "now" means after the joins the
+        run has done: :meth:`estimate` also joins the whole stack on copies and may merge
+        features that resolve() still reports apart.
         """
         return self._core.resolve(ids)
 

@@ -324,8 +324,8 @@ TEST(EkfSlamTentative, DcSlamKeepsTentativeFeaturesUntilTheNextMapJoin) {
   const auto first_ids = slam.update(z, R, nullptr);
   EXPECT_EQ(slam.local_map().map().num_features(), 0);
   EXPECT_EQ(slam.resolve(first_ids), first_ids);
-  // The estimate joins the closed map with the empty current one, which confirms nothing.
-  EXPECT_EQ(slam.estimate().landmark_ids.size(), 0u);
+  // The estimate keeps them: no join has judged them yet (the next map has not seen them).
+  EXPECT_EQ(slam.estimate().landmark_ids, first_ids);
   // The next local map sees both again: the join merges them into the first map's features.
   const auto second_ids = slam.update(z, R, nullptr);
   ASSERT_EQ(slam.joins().size(), 1u);
