@@ -226,26 +226,31 @@ std::vector<int> nearest_neighbour(const CandidateLists& candidates, const Pairi
   return feature_of;
 }
 
-double joint_distance_sq(const std::vector<int>& feature_of, const PairingModel& model) {
-  std::vector<Pairing> pairings;
+StackedHypothesis stack_hypothesis(const std::vector<int>& feature_of, const PairingModel& model) {
+  StackedHypothesis stacked;
   for (std::size_t i = 0; i < feature_of.size(); ++i) {
-    if (feature_of[i] != kStar) pairings.push_back(Pairing{static_cast<int>(i), feature_of[i]});
+    if (feature_of[i] != kStar) stacked.pairings.push_back(Pairing{static_cast<int>(i), feature_of[i]});
   }
-  const auto k = static_cast<Eigen::Index>(pairings.size());
-  if (k == 0) return 0.0;
-  Eigen::VectorXd innovation(2 * k);
-  Eigen::MatrixXd covariance(2 * k, 2 * k);
+  const auto k = static_cast<Eigen::Index>(stacked.pairings.size());
+  stacked.innovation.resize(2 * k);
+  stacked.covariance.resize(2 * k, 2 * k);
   for (Eigen::Index a = 0; a < k; ++a) {
-    innovation.segment<2>(2 * a) = model.innovation(pairings[a]);
+    stacked.innovation.segment<2>(2 * a) = model.innovation(stacked.pairings[a]);
     for (Eigen::Index b = 0; b <= a; ++b) {
-      const Mat2 block = model.covariance(pairings[a], pairings[b]);
-      covariance.block<2, 2>(2 * a, 2 * b) = block;
-      covariance.block<2, 2>(2 * b, 2 * a) = block.transpose();
+      const Mat2 block = model.covariance(stacked.pairings[a], stacked.pairings[b]);
+      stacked.covariance.block<2, 2>(2 * a, 2 * b) = block;
+      stacked.covariance.block<2, 2>(2 * b, 2 * a) = block.transpose();
     }
   }
-  const Eigen::LLT<Eigen::MatrixXd> cholesky(covariance);
+  return stacked;
+}
+
+double joint_distance_sq(const std::vector<int>& feature_of, const PairingModel& model) {
+  const StackedHypothesis stacked = stack_hypothesis(feature_of, model);
+  if (stacked.pairings.empty()) return 0.0;
+  const Eigen::LLT<Eigen::MatrixXd> cholesky(stacked.covariance);
   if (cholesky.info() != Eigen::Success) return kInfinity;
-  return cholesky.matrixL().solve(innovation).squaredNorm();
+  return cholesky.matrixL().solve(stacked.innovation).squaredNorm();
 }
 
 }  // namespace dcslam

@@ -67,23 +67,13 @@ void check_options(const RjcOptions& options) {
 
 int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel& model,
                                 double confidence, double* joint_distance_sq) {
-  std::vector<Pairing> pairings;
-  for (std::size_t i = 0; i < feature_of.size(); ++i) {
-    if (feature_of[i] != kStar) pairings.push_back(Pairing{static_cast<int>(i), feature_of[i]});
-  }
+  StackedHypothesis stacked = stack_hypothesis(feature_of, model);
+  const std::vector<Pairing>& pairings = stacked.pairings;
   const auto k = static_cast<Eigen::Index>(pairings.size());
   if (joint_distance_sq != nullptr) *joint_distance_sq = 0.0;
   if (k == 0) return 0;
-  Eigen::VectorXd innovation(2 * k);
-  Eigen::MatrixXd information(2 * k, 2 * k);
-  for (Eigen::Index a = 0; a < k; ++a) {
-    innovation.segment<2>(2 * a) = model.innovation(pairings[a]);
-    for (Eigen::Index c = 0; c <= a; ++c) {
-      const Mat2 block = model.covariance(pairings[a], pairings[c]);
-      information.block<2, 2>(2 * a, 2 * c) = block;
-      information.block<2, 2>(2 * c, 2 * a) = block.transpose();
-    }
-  }
+  Eigen::VectorXd& innovation = stacked.innovation;  // entries of removed pairings are zeroed
+  Eigen::MatrixXd& information = stacked.covariance;  // becomes S^-1 below
   const Eigen::LLT<Eigen::MatrixXd> cholesky(information);
   if (cholesky.info() != Eigen::Success) {
     throw InvalidArgument("enforce_joint_compatibility: joint covariance not positive definite");

@@ -127,6 +127,15 @@ std::vector<int> nearest_neighbour(const CandidateLists& candidates, const Pairi
 
 // Joint Mahalanobis distance of a whole hypothesis computed directly (stacked nu and S,
 // O(|H|^3)); 0 for an empty one, +inf if S_H is not positive definite.
+// The pairings of a hypothesis (kStar skipped, in measurement order) with their stacked
+// innovation and joint covariance, built directly from the model (O(|H|^2) blocks).
+struct StackedHypothesis {
+  std::vector<Pairing> pairings;
+  Eigen::VectorXd innovation;
+  Eigen::MatrixXd covariance;
+};
+StackedHypothesis stack_hypothesis(const std::vector<int>& feature_of, const PairingModel& model);
+
 double joint_distance_sq(const std::vector<int>& feature_of, const PairingModel& model);
 
 }  // namespace dcslam
