@@ -51,16 +51,6 @@ std::vector<std::int64_t> joined_tentative_ids(const std::vector<std::int64_t>& 
   return ids;
 }
 
-Estimate to_estimate(GaussianMap map) {
-  Estimate estimate;
-  estimate.robot = map.robot();
-  const Eigen::Index n = map.num_features();
-  estimate.landmarks.resize(n, 2);
-  for (Eigen::Index k = 0; k < n; ++k) estimate.landmarks.row(k) = map.feature(k).transpose();
-  estimate.landmark_ids = map.ids();
-  estimate.covariance = map.release_covariance();
-  return estimate;
-}
 
 }  // namespace
 
@@ -314,7 +304,10 @@ Estimate DCSlam::estimate() const {
     join.finish();  // releases its inputs: at most the inputs and the result are alive
     joined = std::make_shared<GaussianMap>(join.take_result());
   }
-  return to_estimate(std::move(*joined));
+  // Means and ids first: release_covariance() moves P out without a copy and empties the map.
+  Estimate estimate = to_estimate(*joined, Eigen::MatrixXd());
+  estimate.covariance = joined->release_covariance();
+  return estimate;
 }
 
 Vec3 DCSlam::node_robot(const Node& node) const {

@@ -280,16 +280,7 @@ EkfSlam::Index EkfSlam::add_feature(const Vec2& z, const Mat2& R, std::int64_t i
   return index;
 }
 
-Estimate EkfSlam::estimate() const {
-  Estimate estimate;
-  estimate.robot = map_.robot();
-  const Index n = map_.num_features();
-  estimate.landmarks.resize(n, 2);
-  for (Index k = 0; k < n; ++k) estimate.landmarks.row(k) = map_.feature(k).transpose();
-  estimate.landmark_ids = map_.ids();
-  estimate.covariance = map_.P();
-  return estimate;
-}
+Estimate EkfSlam::estimate() const { return to_estimate(map_, map_.P()); }
 
 std::vector<std::int64_t> EkfSlam::resolve(const std::vector<std::int64_t>& ids) const {
   std::vector<std::int64_t> resolved = ids;

@@ -8,6 +8,7 @@
 
 #include <Eigen/Core>
 
+#include "dcslam/gaussian_map.hpp"
 #include "dcslam/geometry.hpp"
 
 namespace dcslam {
@@ -23,6 +24,10 @@ struct Estimate {
   std::vector<std::int64_t> landmark_ids;                                // (n,)
   Eigen::MatrixXd covariance;                                            // (3+2n, 3+2n)
 };
+
+// The Estimate of `map`, with `covariance` its P (passed apart so that a caller done with the
+// map can move it in rather than copy it).
+Estimate to_estimate(const GaussianMap& map, Eigen::MatrixXd covariance);
 
 // What one step (a predict and the updates after it) did and cost.
 struct StepStats {
