@@ -22,13 +22,6 @@ constexpr double kSlackFraction = 0.25;
 // The cell size follows the scan's largest query radius within this factor.
 constexpr double kCellDrift = 4.0;
 
-double largest_std(const Mat2& covariance) {
-  const double half_trace = 0.5 * covariance.trace();
-  const double det = covariance.determinant();
-  return std::sqrt(
-      std::max(0.0, half_trace + std::sqrt(std::max(0.0, half_trace * half_trace - det))));
-}
-
 }  // namespace
 
 void EkfPairingModel::reset(const GaussianMap& map, ObservationModel observation,

@@ -1,6 +1,9 @@
 #include "dcslam/geometry.hpp"
 
+#include <algorithm>
 #include <cmath>
+
+#include <Eigen/LU>
 
 namespace dcslam {
 
@@ -45,6 +48,12 @@ Vec2 inverse_transform_point(const Vec3& a, const Vec2& p, Mat23* J_a, Mat2* J_p
   if (J_a) *J_a << -c, -s, qy, s, -c, -qx;
   if (J_p) *J_p << c, s, -s, c;
   return {qx, qy};
+}
+
+double largest_std(const Mat2& covariance) {
+  const double half_trace = 0.5 * covariance.trace();
+  const double det = covariance.determinant();
+  return std::sqrt(std::max(0.0, half_trace + std::sqrt(std::max(0.0, half_trace * half_trace - det))));
 }
 
 }  // namespace dcslam

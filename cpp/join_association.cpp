@@ -16,12 +16,6 @@ namespace {
 
 using Index = Eigen::Index;
 
-double largest_std(const Mat2& covariance) {
-  const double half_trace = 0.5 * covariance.trace();
-  const double det = covariance.determinant();
-  return std::sqrt(std::max(0.0, half_trace + std::sqrt(std::max(0.0, half_trace * half_trace - det))));
-}
-
 // Confidence of the individual gate that builds the candidate lists. It only prunes: the
 // decisions are taken by the joint test (JCBB) or by the gate conditioned on the seed
 // hypothesis (RJC), both at options.gate_confidence. The marginal pair covariance holds the

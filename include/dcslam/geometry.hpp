@@ -28,4 +28,8 @@ Vec2 transform_point(const Vec3& a, const Vec2& p, Mat23* J_a = nullptr, Mat2* J
 Vec2 inverse_transform_point(const Vec3& a, const Vec2& p, Mat23* J_a = nullptr,
                              Mat2* J_p = nullptr);
 
+// Square root of the largest eigenvalue of a 2x2 covariance: the largest standard deviation
+// along any direction (bounds |x| <= c * sigma for the gate c of a Mahalanobis test).
+double largest_std(const Mat2& covariance);
+
 }  // namespace dcslam

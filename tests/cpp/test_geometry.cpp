@@ -1,6 +1,7 @@
 #include <cmath>
 #include <random>
 
+#include <Eigen/Eigenvalues>
 #include <gtest/gtest.h>
 
 #include "dcslam/errors.hpp"
@@ -98,6 +99,17 @@ TEST_F(GeometryTest, PointTransformJacobiansMatchCentralDifferences) {
     EXPECT_LT((J_p - numeric_jacobian([&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
                        return inverse_transform_point(a, v);
                      }, p)).cwiseAbs().maxCoeff(), kJacobianTol);
+  }
+}
+
+TEST_F(GeometryTest, LargestStdIsTheSquareRootOfTheLargestEigenvalue) {
+  for (int i = 0; i < 300; ++i) {
+    Mat2 A;
+    A << uniform(-2, 2), uniform(-2, 2), uniform(-2, 2), uniform(-2, 2);
+    const Mat2 covariance = A * A.transpose() + (i % 5 == 0 ? 0.0 : 1e-3) * Mat2::Identity();
+    const double expected =
+        std::sqrt(std::max(0.0, Eigen::SelfAdjointEigenSolver<Mat2>(covariance).eigenvalues().maxCoeff()));
+    EXPECT_NEAR(largest_std(covariance), expected, 1e-9 * std::max(1.0, expected));
   }
 }
 
