@@ -26,10 +26,26 @@ std::shared_ptr<const GaussianMap> compact_copy(const GaussianMap& map) {
   return copy;
 }
 
-// Indices in `map` of the features whose ids are in `ids`.
-std::vector<Eigen::Index> feature_indices(const GaussianMap& map,
-                                          const std::vector<std::int64_t>& ids) {
-  const std::unordered_set<std::int64_t> wanted(ids.begin(), ids.end());
+using TentativeFeature = DCSlam::TentativeFeature;
+
+// A tentative feature once the join of local maps [first_leaf, last_leaf] has met it: the
+// previous local map is met when it is inside, the next one likewise.
+TentativeFeature met(TentativeFeature feature, std::int64_t first_leaf, std::int64_t last_leaf) {
+  feature.needs_previous = feature.needs_previous && feature.leaf <= first_leaf;
+  feature.needs_next = feature.needs_next && feature.leaf >= last_leaf;
+  return feature;
+}
+
+// Indices in `map` of the tentative features that need nothing more after this join: matched
+// there they are confirmed, unmatched they are dropped.
+std::vector<Eigen::Index> last_chance(const GaussianMap& map,
+                                      const std::vector<TentativeFeature>& tentative,
+                                      std::int64_t first_leaf, std::int64_t last_leaf) {
+  std::unordered_set<std::int64_t> wanted;
+  for (const TentativeFeature& feature : tentative) {
+    const TentativeFeature after = met(feature, first_leaf, last_leaf);
+    if (!after.needs_previous && !after.needs_next) wanted.insert(feature.id);
+  }
   std::vector<Eigen::Index> indices;
   for (std::size_t k = 0; k < map.ids().size(); ++k) {
     if (wanted.count(map.ids()[k]) != 0) indices.push_back(static_cast<Eigen::Index>(k));
@@ -37,20 +53,28 @@ std::vector<Eigen::Index> feature_indices(const GaussianMap& map,
   return indices;
 }
 
-// The tentative features of a join's result: m2's, except those merged into an m1 feature
-// (seen in both maps, so confirmed). m1's tentative features are either confirmed the same
-// way or dropped by the join.
-std::vector<std::int64_t> joined_tentative_ids(const std::vector<std::int64_t>& second_tentative,
-                                               const MapJoin& join) {
-  std::unordered_set<std::int64_t> merged;
-  for (const auto& [from, to] : join.merged_ids()) merged.insert(from);
-  std::vector<std::int64_t> ids;
-  for (std::int64_t id : second_tentative) {
-    if (merged.count(id) == 0) ids.push_back(id);
+// The tentative features of a join's result: those of both inputs that still need a later
+// join and were not matched in this one (a match confirms a feature: seen in both maps).
+std::vector<TentativeFeature> joined_tentative(const std::vector<TentativeFeature>& first,
+                                               const std::vector<TentativeFeature>& second,
+                                               const MapJoin& join, std::int64_t first_leaf,
+                                               std::int64_t last_leaf) {
+  std::unordered_set<std::int64_t> matched;
+  for (const auto& [from, to] : join.merged_ids()) {
+    matched.insert(from);
+    matched.insert(to);
   }
-  return ids;
+  std::vector<TentativeFeature> kept;
+  for (const auto* side : {&first, &second}) {
+    for (const TentativeFeature& feature : *side) {
+      const TentativeFeature after = met(feature, first_leaf, last_leaf);
+      if ((after.needs_previous || after.needs_next) && matched.count(feature.id) == 0) {
+        kept.push_back(after);
+      }
+    }
+  }
+  return kept;
 }
-
 
 }  // namespace
 
@@ -128,13 +152,23 @@ void DCSlam::close_local_map() {
   }
   auto node = std::make_shared<Node>();
   node->map = compact_copy(local_->map());
-  // Features seen once stay: a landmark first seen in the map's last steps is seen again by
-  // the next map, and the join that meets it keeps the feature only if it matches.
-  node->tentative_ids = local_->tentative_ids();
+  // Features seen once stay until the joins with the neighbouring local maps (the previous
+  // one, for those first seen in this map's first steps; the next one, for those still
+  // unexpired), and are kept only if matched there: the EKF's min_sightings rule across maps.
+  const std::int64_t leaf = closed_local_maps_;
+  const std::int64_t window = config_.tentative_window;
+  const std::int64_t steps = local_->steps();
+  for (const auto& feature : local_->tentative_features()) {
+    node->tentative.push_back(TentativeFeature{
+        feature.id, leaf, leaf > 0 && feature.first_seen_step <= window,
+        steps - feature.last_seen_step <= window});
+  }
+  node->first_leaf = leaf;
   node->expected_features = node->map->num_features();
   const std::int64_t next_id = local_->next_fresh_id();
   local_ = std::make_unique<EkfSlam>(config_);
   local_->set_next_fresh_id(next_id);
+  local_->keep_tentative_first_seen_until(window);
   steps_in_closed_maps_ += local_map_steps_;
   local_map_steps_ = 0;
   ++closed_local_maps_;
@@ -160,6 +194,7 @@ void DCSlam::push_and_merge(std::shared_ptr<Node> node) {
     auto result = std::make_shared<Node>();
     task->result = result;
     result->leaves = task->left->leaves + task->right->leaves;
+    result->first_leaf = task->left->first_leaf;
     result->expected_features =
         task->left->expected_features + task->right->expected_features;
     result->task = task;
@@ -206,18 +241,31 @@ void DCSlam::run_amortized_budget() {
 
 std::int64_t DCSlam::work_on(JoinTask& task, std::int64_t budget) {
   if (!task.join) {
-    task.join = std::make_unique<MapJoin>(
-        task.left->map, task.right->map, join_options(task.index),
-        feature_indices(*task.left->map, task.left->tentative_ids));
+    task.join = make_join(NodeMap{task.left->map, task.left->tentative},
+                          NodeMap{task.right->map, task.right->tentative}, *task.left,
+                          *task.right, task.index);
   }
   const std::int64_t spent = task.join->advance(budget);
   if (task.join->done()) complete(task);
   return spent;
 }
 
+std::unique_ptr<MapJoin> DCSlam::make_join(const NodeMap& first, const NodeMap& second,
+                                           const Node& left, const Node& right,
+                                           int index) const {
+  const std::int64_t first_leaf = left.first_leaf;
+  const std::int64_t last_leaf = right.first_leaf + right.leaves - 1;
+  return std::make_unique<MapJoin>(
+      first.map, second.map, join_options(index),
+      last_chance(*first.map, first.tentative, first_leaf, last_leaf),
+      last_chance(*second.map, second.tentative, first_leaf, last_leaf));
+}
+
 void DCSlam::complete(JoinTask& task) {
   auto map = std::make_shared<const GaussianMap>(task.join->take_result());
-  std::vector<std::int64_t> tentative = joined_tentative_ids(task.right->tentative_ids, *task.join);
+  std::vector<TentativeFeature> tentative =
+      joined_tentative(task.left->tentative, task.right->tentative, *task.join,
+                       task.left->first_leaf, task.right->first_leaf + task.right->leaves - 1);
   std::lock_guard<std::mutex> lock(mutex_);
   JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
   event.report = task.join->report();
@@ -227,7 +275,7 @@ void DCSlam::complete(JoinTask& task) {
   }
   for (std::int64_t id : task.join->dropped_ids()) merged_into_[id] = -1;
   const std::shared_ptr<Node> result = task.result.lock();
-  result->tentative_ids = std::move(tentative);
+  result->tentative = std::move(tentative);
   result->map = std::move(map);
   result->expected_features = result->map->num_features();
   result->task.reset();
@@ -272,7 +320,7 @@ DCSlam::NodeMap DCSlam::materialize(const std::shared_ptr<Node>& node) const {
   int index = 0;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    if (node->map) return NodeMap{node->map, node->tentative_ids};
+    if (node->map) return NodeMap{node->map, node->tentative};
     left = node->task->left;
     right = node->task->right;
     index = node->task->index;
@@ -280,11 +328,11 @@ DCSlam::NodeMap DCSlam::materialize(const std::shared_ptr<Node>& node) const {
   // Same inputs and options as the real join: the same result, computed on the side.
   NodeMap first = materialize(left);
   NodeMap second = materialize(right);
-  MapJoin join(first.map, second.map, join_options(index),
-               feature_indices(*first.map, first.tentative_ids));
-  join.finish();
-  return NodeMap{std::make_shared<const GaussianMap>(join.take_result()),
-                 joined_tentative_ids(second.tentative_ids, join)};
+  const std::unique_ptr<MapJoin> join = make_join(first, second, *left, *right, index);
+  join->finish();
+  return NodeMap{std::make_shared<const GaussianMap>(join->take_result()),
+                 joined_tentative(first.tentative, second.tentative, *join, left->first_leaf,
+                                  right->first_leaf + right->leaves - 1)};
 }
 
 Estimate DCSlam::estimate() const {

@@ -63,13 +63,16 @@ void EkfSlam::prune_tentative() {
   remove_tentative([](const Track&) { return true; });
 }
 
-std::vector<std::int64_t> EkfSlam::tentative_ids() const {
-  std::vector<std::int64_t> ids;
-  if (!tentative_policy()) return ids;
+std::vector<EkfSlam::TentativeFeature> EkfSlam::tentative_features() const {
+  std::vector<TentativeFeature> features;
+  if (!tentative_policy()) return features;
   for (std::size_t k = 0; k < tracks_.size(); ++k) {
-    if (tracks_[k].sightings < config_.min_sightings) ids.push_back(map_.ids()[k]);
+    const Track& track = tracks_[k];
+    if (track.sightings < config_.min_sightings) {
+      features.push_back(TentativeFeature{map_.ids()[k], track.first_seen_step, track.last_seen_step});
+    }
   }
-  return ids;
+  return features;
 }
 
 StepStats& EkfSlam::current_step() {
@@ -113,7 +116,10 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
   const auto m = static_cast<std::size_t>(z.rows());
 
   remove_tentative(
-      [this](const Track& track) { return step_ - track.last_seen_step > config_.tentative_window; });
+      [this](const Track& track) {
+        return step_ - track.last_seen_step > config_.tentative_window &&
+               track.first_seen_step > keep_until_step_;
+      });
   associate(z, R, landmark_ids);
   update_paired(z, R);
   if (association_ && !paired_measurements_.empty()) association_->map_updated(map_);
@@ -135,7 +141,7 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
       const Index index =
           add_feature(z.row(static_cast<Index>(i)).transpose(), covariance_of(R, i), id);
       index_of_id_[id] = index;
-      tracks_.push_back(Track{1, step_});
+      tracks_.push_back(Track{1, step_, step_});
       if (association_) association_->feature_added(map_, index);
       assigned[i] = id;
       ++step.new_features;

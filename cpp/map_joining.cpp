@@ -97,18 +97,23 @@ std::vector<std::pair<Index, Index>> associate_by_id(const GaussianMap& first,
 // ---------------------------------------------------------------------------------------
 MapJoin::MapJoin(std::shared_ptr<const GaussianMap> first,
                  std::shared_ptr<const GaussianMap> second, JoinOptions options,
-                 std::vector<Index> first_tentative)
+                 std::vector<Index> first_tentative, std::vector<Index> second_tentative)
     : first_(std::move(first)),
       second_(std::move(second)),
       options_(options),
-      first_tentative_(std::move(first_tentative)) {
+      first_tentative_(std::move(first_tentative)),
+      second_tentative_(std::move(second_tentative)) {
   if (!first_ || !second_) throw InvalidArgument("MapJoin: both maps are required");
-  for (Index i : first_tentative_) {
-    if (i < 0 || i >= first_->num_features()) {
-      throw InvalidArgument("MapJoin: tentative feature index " + std::to_string(i) +
-                            " out of range");
+  const auto check = [](const std::vector<Index>& indices, Index features, const char* which) {
+    for (Index i : indices) {
+      if (i < 0 || i >= features) {
+        throw InvalidArgument(std::string("MapJoin: tentative feature index ") +
+                              std::to_string(i) + " of the " + which + " map out of range");
+      }
     }
-  }
+  };
+  check(first_tentative_, first_->num_features(), "first");
+  check(second_tentative_, second_->num_features(), "second");
   options_.block_columns = std::max<Index>(2, options_.block_columns & ~Index{1});
   report_.features_first = first_->num_features();
   report_.features_second = second_->num_features();
@@ -226,8 +231,8 @@ void MapJoin::associate() {
                              m1.ids()[static_cast<std::size_t>(i)]);
   }
 
-  // m1's tentative features that nothing in m2 confirms are dropped: deleting their rows and
-  // columns is their exact marginal, and the constraints never involve them.
+  // Tentative features left unmatched are dropped: deleting their rows and columns is their
+  // exact marginal, and the constraints never involve them.
   std::vector<char> dropped(static_cast<std::size_t>(m1.num_features()), 0);
   for (Index i : first_tentative_) dropped[static_cast<std::size_t>(i)] = 1;
   for (const auto& pair : pairs_) dropped[static_cast<std::size_t>(pair.first)] = 0;
@@ -243,6 +248,12 @@ void MapJoin::associate() {
     first_kept_rows_.push_back(GaussianMap::feature_offset(i));
     first_kept_rows_.push_back(GaussianMap::feature_offset(i) + 1);
     first_kept_ids_.push_back(id);
+  }
+  second_dropped_.assign(static_cast<std::size_t>(m2.num_features()), 0);
+  for (Index j : second_tentative_) second_dropped_[static_cast<std::size_t>(j)] = 1;
+  for (const auto& pair : pairs_) second_dropped_[static_cast<std::size_t>(pair.second)] = 0;
+  for (Index j = 0; j < m2.num_features(); ++j) {
+    if (second_dropped_[static_cast<std::size_t>(j)]) dropped_ids_.push_back(m2.ids()[static_cast<std::size_t>(j)]);
   }
   report_.dropped_tentative = static_cast<int>(dropped_ids_.size());
 }
@@ -261,13 +272,14 @@ void MapJoin::constrain() {
   const auto P2 = m2.P();
   const Mat3 P1_RR = P1.topLeftCorner<3, 3>();
 
-  // Kept elements of m2: its robot (R2, the joined map's robot) and unmatched features.
+  // Kept elements of m2: its robot (R2, the joined map's robot) and the features neither
+  // matched nor dropped.
   std::vector<char> matched(static_cast<std::size_t>(n2), 0);
   for (const auto& pair : pairs_) matched[static_cast<std::size_t>(pair.second)] = 1;
   second_kept_rows_ = {0, 1, 2};
   second_kept_ids_.clear();
   for (Index j = 0; j < n2; ++j) {
-    if (matched[static_cast<std::size_t>(j)]) continue;
+    if (matched[static_cast<std::size_t>(j)] || second_dropped_[static_cast<std::size_t>(j)]) continue;
     second_kept_rows_.push_back(GaussianMap::feature_offset(j));
     second_kept_rows_.push_back(GaussianMap::feature_offset(j) + 1);
     second_kept_ids_.push_back(m2.ids()[static_cast<std::size_t>(j)]);

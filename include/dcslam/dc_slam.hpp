@@ -53,6 +53,16 @@ class DCSlam : public SlamFilter {
   std::vector<std::int64_t> resolve(const std::vector<std::int64_t>& ids) const override;
   const RunStats& stats() const override;
 
+  // A feature of a closed map seen only once. Its landmark may also have been seen once by
+  // the local map before (`needs_previous`: first seen in the local map's first
+  // tentative_window steps) or after (`needs_next`: still unexpired when the map closed). It is
+  // kept until the joins with those maps, confirmed by a match there, or else dropped.
+  struct TentativeFeature {
+    std::int64_t id = 0;
+    std::int64_t leaf = 0;  // the local map that saw it (0: the first)
+    bool needs_previous = false;
+    bool needs_next = false;
+  };
   // Join events so far (pending ones have step_finished == -1).
   std::vector<JoinEvent> joins() const;
   // The stack's shape, bottom first: local maps held by each map, and its feature count
@@ -68,11 +78,10 @@ class DCSlam : public SlamFilter {
   struct JoinTask;
   struct Node {
     int leaves = 1;
+    std::int64_t first_leaf = 0;  // the node holds local maps first_leaf .. first_leaf+leaves-1
     std::int64_t expected_features = 0;
     std::shared_ptr<const GaussianMap> map;  // set once complete
-    // Features of `map` seen only once (set with it): the join with the next map drops those
-    // it does not match.
-    std::vector<std::int64_t> tentative_ids;
+    std::vector<TentativeFeature> tentative;  // set with `map`
     std::shared_ptr<JoinTask> task;          // set while pending
   };
   struct JoinTask {
@@ -95,8 +104,11 @@ class DCSlam : public SlamFilter {
   JoinOptions join_options(int index) const;
   struct NodeMap {
     std::shared_ptr<const GaussianMap> map;
-    std::vector<std::int64_t> tentative_ids;
+    std::vector<TentativeFeature> tentative;
   };
+  // The join of two adjacent nodes, with the tentative features whose last chance it is.
+  std::unique_ptr<MapJoin> make_join(const NodeMap& first, const NodeMap& second,
+                                     const Node& left, const Node& right, int index) const;
   // The map of `node`, computing pending joins on copies (never touching the real tasks).
   NodeMap materialize(const std::shared_ptr<Node>& node) const;
   Vec3 node_robot(const Node& node) const;

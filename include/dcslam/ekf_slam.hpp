@@ -45,8 +45,20 @@ class EkfSlam : public SlamFilter {
   // Removes every tentative feature now. Does nothing when the policy is off ("known" mode or
   // min_sightings = 1). O(n) per removed feature.
   void prune_tentative();
-  // Ids of the features that are tentative now (empty when the policy is off). O(n).
-  std::vector<std::int64_t> tentative_ids() const;
+  // A tentative feature now: its id and the steps (predicts so far) it was first and last seen.
+  struct TentativeFeature {
+    std::int64_t id = 0;
+    std::int64_t first_seen_step = 0;
+    std::int64_t last_seen_step = 0;
+  };
+  // The features that are tentative now (empty when the policy is off). O(n).
+  std::vector<TentativeFeature> tentative_features() const;
+  // Tentative features first seen at a step <= `step` never expire (prune_tentative() still
+  // removes them). D&C: a landmark seen once at the start of a local map may have been seen
+  // at the end of the previous one, and only the join of the two can tell.
+  void keep_tentative_first_seen_until(std::int64_t step) { keep_until_step_ = step; }
+  // Predicts so far.
+  std::int64_t steps() const { return step_; }
   // Ids of the features removed so far by the spurious-measurement policy.
   const std::unordered_set<std::int64_t>& removed_ids() const { return removed_ids_; }
 
@@ -91,10 +103,12 @@ class EkfSlam : public SlamFilter {
   // Per feature (state order): how often it has been seen and the step it was last seen in.
   struct Track {
     int sightings = 0;
+    std::int64_t first_seen_step = 0;
     std::int64_t last_seen_step = 0;
   };
   std::vector<Track> tracks_;
   std::int64_t step_ = 0;  // predicts so far
+  std::int64_t keep_until_step_ = -1;
   std::unordered_set<std::int64_t> removed_ids_;
 
   // Workspaces kept across steps so that the hot path does not allocate; they only grow.

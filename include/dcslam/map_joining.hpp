@@ -40,7 +40,7 @@ struct JoinReport {
   int overlap = 0;   // features of m2 with at least one individually compatible candidate
   int pairings = 0;  // matched pairs imposed as constraints
   int tries = 0;     // RJC hypotheses tried (0 for other modes)
-  int dropped_tentative = 0;  // m1's tentative features no m2 feature matched (marginalised)
+  int dropped_tentative = 0;  // tentative features left unmatched (marginalised)
   double seconds_association = 0.0;
   double seconds_total = 0.0;  // summed over all the slices the join was run in
   std::int64_t work_units = 0;  // covariance elements written plus association/preparation
@@ -93,11 +93,13 @@ class MapJoin {
   using Pairs = std::vector<std::pair<Eigen::Index, Eigen::Index>>;
 
   // The inputs are shared and never modified (an anytime estimate may join copies of the same
-  // inputs while the real join is pending). `first_tentative` lists m1's features (indices,
-  // no duplicates) seen only once: those no m2 feature matches are marginalised out of the
-  // result (their rows and columns are not written), the others are confirmed by the match.
+  // inputs while the real join is pending). `first_tentative` and `second_tentative` list
+  // features of m1 and m2 (indices, no duplicates) seen only once whose last chance of a
+  // partner is this join: those left unmatched are marginalised out of the result (their rows
+  // and columns are not written), the others are confirmed by the match.
   MapJoin(std::shared_ptr<const GaussianMap> first, std::shared_ptr<const GaussianMap> second,
-          JoinOptions options, std::vector<Eigen::Index> first_tentative = {});
+          JoinOptions options, std::vector<Eigen::Index> first_tentative = {},
+          std::vector<Eigen::Index> second_tentative = {});
 
   // Does at least one unit of work (if not done) and stops once `budget` work units are
   // spent. Returns the work done.
@@ -112,7 +114,8 @@ class MapJoin {
   const JoinReport& report() const { return report_; }
   // (id in m2, id in m1) for every matched pair: the m2 feature merged into the m1 one.
   std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids() const;
-  // Ids of m1's tentative features marginalised out of the result; known once associated.
+  // Ids of the tentative features (of m1, then of m2) marginalised out of the result; known
+  // once associated.
   const std::vector<std::int64_t>& dropped_ids() const { return dropped_ids_; }
 
  private:
@@ -144,8 +147,10 @@ class MapJoin {
   JoinReport report_;
   Pairs pairs_;
   std::vector<Eigen::Index> first_tentative_;
+  std::vector<Eigen::Index> second_tentative_;
   std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids_;
   std::vector<std::int64_t> dropped_ids_;
+  std::vector<char> second_dropped_;  // per m2 feature: a tentative one left unmatched
 
   // Prepared for the fill. Every block of the result is a "base" (a block of P1, or of
   // J_2 P2 J_2') plus a low-rank term L N' with inner dimension 3 + 2r:

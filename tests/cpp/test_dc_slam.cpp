@@ -354,12 +354,11 @@ TEST(DcSlamTentative, FeatureFirstSeenAtALocalMapsCloseIsMergedWithItsNextSighti
   int merged = 0, missed = 0;
   for (const auto& [landmark, later] : next_id) {
     const std::int64_t second = dc.resolve({later})[0];
-    // Seen once in each map and never again: the next map's filter drops its feature as
-    // expired before any join can confirm it, so the landmark is lost (the policy's cost).
-    if (second == -1) continue;
     const std::int64_t first = dc.resolve({first_id.at(landmark)})[0];
-    // The join's association left the pair unmatched, so the first sighting was dropped.
-    if (first == -1) {
+    // Both sightings wait for the join of their two maps (the second is in the first steps of
+    // its map, so it does not expire there); only that join's association leaving the pair
+    // unmatched drops them.
+    if (first == -1 || second == -1) {
       ++missed;
       continue;
     }
@@ -373,16 +372,26 @@ TEST(DcSlamTentative, FeatureFirstSeenAtALocalMapsCloseIsMergedWithItsNextSighti
   EXPECT_GE(merged, 8);
   EXPECT_LE(missed, merged / 4);
   // A clutter feature outside the local map is in the estimate only if another spurious point
-  // was paired with it (seen twice, so confirmed), or if it comes from the newest closed local
-  // map, whose once-seen features no join has judged yet. Every other one resolves to -1.
+  // was paired with it (seen twice, so confirmed), or if a neighbouring local map that could
+  // still confirm it is not joined with its own yet: it was seen in the first tentative_window
+  // steps of a local map that is the first of its stack node (the previous map is elsewhere),
+  // or in the last ones of a map that is the last of its node. Every other one resolves to -1.
   const auto& local_ids = dc.local_map().map().ids();
   const std::set<std::int64_t> in_local_map(local_ids.begin(), local_ids.end());
   std::multiset<std::int64_t> resolved_clutter;
   for (std::int64_t id : clutter_ids) resolved_clutter.insert(dc.resolve({id})[0]);
   EXPECT_GT(clutter_ids.size(), 20u);
   ASSERT_GE(close_steps.size(), 3u);
-  const std::size_t newest_begin = close_steps[close_steps.size() - 2];
-  const std::size_t newest_end = close_steps.back();
+  std::set<std::size_t> first_of_node, last_of_node;  // local map indices
+  std::size_t leaf = 0;
+  for (const auto& [leaves, features] : dc.stack_shape()) {
+    first_of_node.insert(leaf);
+    leaf += static_cast<std::size_t>(leaves);
+    last_of_node.insert(leaf - 1);
+  }
+  const auto window = static_cast<std::size_t>(config.tentative_window);
+  // Local map j holds steps (close_steps[j-1], close_steps[j]]; the first one starts at -1.
+  const auto begin_of = [&](std::size_t j) { return j == 0 ? -1.0 : static_cast<double>(close_steps[j - 1]); };
   int dropped = 0;
   for (std::int64_t id : clutter_ids) {
     const std::int64_t resolved = dc.resolve({id})[0];
@@ -392,7 +401,12 @@ TEST(DcSlamTentative, FeatureFirstSeenAtALocalMapsCloseIsMergedWithItsNextSighti
     }
     if (in_local_map.count(id) != 0 || resolved_clutter.count(resolved) >= 2) continue;
     const std::size_t step = clutter_step.at(id);
-    EXPECT_TRUE(step > newest_begin && step <= newest_end) << id << " started at step " << step;
+    const std::size_t j = static_cast<std::size_t>(
+        std::lower_bound(close_steps.begin(), close_steps.end(), step) - close_steps.begin());
+    const bool awaits_previous = j > 0 && first_of_node.count(j) != 0 &&
+                                 static_cast<double>(step) <= begin_of(j) + static_cast<double>(window);
+    const bool awaits_next = last_of_node.count(j) != 0 && close_steps[j] - step <= window;
+    EXPECT_TRUE(awaits_previous || awaits_next) << id << " started at step " << step;
   }
   EXPECT_GT(dropped, static_cast<int>(clutter_ids.size()) / 2);
 }

@@ -5,6 +5,7 @@
 #include <functional>
 #include <map>
 #include <random>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -333,6 +334,58 @@ TEST(EkfSlamTentative, DcSlamKeepsTentativeFeaturesUntilTheNextMapJoin) {
   EXPECT_EQ(slam.joins()[0].report.dropped_tentative, 0);
   EXPECT_EQ(slam.resolve(second_ids), first_ids);
   EXPECT_EQ(slam.estimate().landmark_ids, first_ids);
+}
+
+// A feature seen once in a local map's first steps waits for the join with the previous map,
+// even when the join with the next map comes first (post-order): there it is merged with its
+// landmark's feature, while a one-off that nothing matches is dropped once both neighbouring
+// maps have met it.
+TEST(EkfSlamTentative, DcSlamKeepsAFeatureSeenOnceUntilItMeetsBothNeighbouringMaps) {
+  SlamConfig config;
+  config.observation = ObservationModel::Point;
+  config.association = Association::Jcbb;
+  config.local_map_features = 2;
+  config.amortize = false;
+  DCSlam slam(config);
+  const std::vector<Mat2> R{Mat2::Identity() * 1e-4};
+  const auto scan = [](std::vector<Vec2> points) {
+    MeasurementMatrix z(static_cast<Eigen::Index>(points.size()), 2);
+    for (std::size_t i = 0; i < points.size(); ++i) z.row(static_cast<Eigen::Index>(i)) = points[i].transpose();
+    return z;
+  };
+  const Vec2 A(2, 0), B(0, 3), C(-3, 0), D(0, -3), E(5, 5);
+  const Mat3 Q = Mat3::Identity() * 1e-8;
+  const auto step = [&](std::vector<Vec2> points) {
+    slam.predict(Vec3::Zero(), Q);
+    return slam.update(scan(points), R, nullptr);
+  };
+  const auto map0 = step({A, B});  // local map 0
+  step({A, B});                     // local map 1: joined with 0, A and B confirmed
+  const auto map2 = step({A, C});   // local map 2: A seen once more, C a one-off
+  const auto map3 = step({D, E});   // local map 3: joined with 2 first, then with 0..1
+  ASSERT_EQ(slam.joins().size(), 3u);
+  EXPECT_EQ(slam.joins()[1].report.dropped_tentative, 0);  // maps 2 + 3: nothing judged yet
+  EXPECT_EQ(slam.resolve(map2), (std::vector<std::int64_t>{map0[0], -1}));
+  // D and E may still be seen by the next local map.
+  EXPECT_EQ(slam.resolve(map3), map3);
+  const Estimate estimate = slam.estimate();
+  EXPECT_EQ(std::set<std::int64_t>(estimate.landmark_ids.begin(), estimate.landmark_ids.end()),
+            (std::set<std::int64_t>{map0[0], map0[1], map3[0], map3[1]}));
+
+  // The filter side: features first seen up to the given step never expire.
+  config.tentative_window = 1;
+  EkfSlam ekf(config);
+  ekf.keep_tentative_first_seen_until(1);
+  ekf.predict(Vec3::Zero(), Q);
+  const auto kept = ekf.update(scan({A}), R, nullptr);
+  ekf.predict(Vec3::Zero(), Q);
+  const auto expiring = ekf.update(scan({C}), R, nullptr);
+  for (int k = 0; k < 3; ++k) {
+    ekf.predict(Vec3::Zero(), Q);
+    ekf.update(scan({}), R, nullptr);
+  }
+  EXPECT_EQ(ekf.map().ids(), kept);
+  EXPECT_EQ(ekf.resolve(expiring)[0], -1);
 }
 
 }  // namespace

@@ -34,7 +34,8 @@ GaussianMap random_map(std::mt19937_64& rng, const std::vector<std::int64_t>& id
 // updated P) and reorder to [R2'; F1 kept; F2' unmatched].
 GaussianMap dense_join(const GaussianMap& m1, const GaussianMap& m2,
                        const std::vector<std::pair<Index, Index>>& pairs,
-                       const std::set<Index>& dropped_first = {}) {
+                       const std::set<Index>& dropped_first = {},
+                       const std::set<Index>& dropped_second = {}) {
   const Index d1 = m1.dim(), d2 = m2.dim(), D = d1 + d2;
   const Vec3 T = m1.robot();
   Eigen::VectorXd z(D);
@@ -80,7 +81,7 @@ GaussianMap dense_join(const GaussianMap& m1, const GaussianMap& m2,
     ids.push_back(m1.ids()[i]);
   }
   for (Index j = 0; j < m2.num_features(); ++j) {
-    if (matched.count(j)) continue;
+    if (matched.count(j) || dropped_second.count(j)) continue;
     order.push_back(d1 + 3 + 2 * j);
     order.push_back(d1 + 4 + 2 * j);
     ids.push_back(m2.ids()[j]);
@@ -167,6 +168,35 @@ TEST_P(MapJoiningTentativeTest, DropsUnmatchedTentativeFeaturesOfTheFirstMapExac
   EXPECT_EQ(a.ids(), b.ids());
   EXPECT_TRUE((a.x().array() == b.x().array()).all());
   EXPECT_TRUE((a.P().array() == b.P().array()).all());
+}
+
+// Tentative features on both sides: m2's unmatched ones are marginalised the same way.
+TEST_P(MapJoiningTentativeTest, DropsUnmatchedTentativeFeaturesOfBothMapsExactly) {
+  std::mt19937_64 rng(43);
+  std::vector<std::int64_t> ids1, ids2;
+  for (int i = 0; i < 12; ++i) ids1.push_back(i);
+  for (int j = 0; j < 11; ++j) ids2.push_back(j < 5 ? 2 * j : 100 + j);  // 0, 2, 4, 6, 8 shared
+  const auto m1 = std::make_shared<const GaussianMap>(random_map(rng, ids1));
+  const auto m2 = std::make_shared<const GaussianMap>(random_map(rng, ids2));
+  // m1: 2 matched (stays), 5 and 11 unmatched (dropped). m2 (indices): 1 (id 2) and 3 (id 6)
+  // matched, so merged; 5, 7 and the last one, 10, unmatched, so dropped.
+  const std::vector<Index> first_tentative = {11, 2, 5};
+  const std::vector<Index> second_tentative = {7, 1, 10, 3, 5};
+  JoinOptions options;
+  options.block_columns = GetParam();
+  MapJoin at_once(m1, m2, options, first_tentative, second_tentative);
+  at_once.finish();
+  EXPECT_EQ(at_once.report().pairings, 5);
+  EXPECT_EQ(at_once.report().dropped_tentative, 5);
+  EXPECT_EQ(at_once.dropped_ids(), (std::vector<std::int64_t>{5, 11, 105, 107, 110}));
+  MapJoin sliced(m1, m2, options, first_tentative, second_tentative);
+  while (!sliced.done()) sliced.advance(20);
+  const GaussianMap a = at_once.take_result(), b = sliced.take_result();
+  EXPECT_EQ(a.num_features(), 12 - 2 + 11 - 5 - 3);
+  expect_maps_equal(a, dense_join(*m1, *m2, associate_by_id(*m1, *m2), {5, 11}, {5, 7, 10}), 1e-9);
+  EXPECT_EQ(a.ids(), b.ids());
+  EXPECT_TRUE((a.P().array() == b.P().array()).all());
+  EXPECT_THROW(MapJoin(m1, m2, JoinOptions{}, {}, {11}), InvalidArgument);
 }
 
 INSTANTIATE_TEST_SUITE_P(BlockColumns, MapJoiningTentativeTest, ::testing::Values(2, 4, 6, 64));
