@@ -20,8 +20,13 @@ k+w when the pairing is unambiguous (nearest < 1 m, second nearest > 3 m). Then:
    odometry errors show up here, not in 1-2: the distances must be chi-square(2) too
    (median 1.39, 99 % below 9.21, the join gate at gate_confidence 0.99).
 
+   Maps of 30 to 240 features test the model over longer and longer stretches of the drive,
+   as D&C's larger joins do (pairs count as unambiguous within sqrt(size / 30) m, with the
+   next candidate beyond three times that).
+
 Usage: python tools/vp_noise_study.py [--steering recalibrated|raw] [--scale 1.0]
-       [--sigma-range R] [--sigma-bearing B]
+       [--sigma-range R] [--sigma-bearing B] [--floor-xy F] [--floor-phi F]
+       [--map-sizes 30,60,120,240]
 """
 
 from __future__ import annotations
@@ -82,7 +87,7 @@ def local_maps(vp, cfg, features_per_map, max_steps):
             slam = dcslam.EkfSlam(cfg)
 
 
-def join_pair_distances(vp, features_per_map=30, max_steps=3000):
+def join_pair_distances(vp, features_per_map=30, max_steps=3000, near=1.0, far=3.0):
     """Squared Mahalanobis distances of unambiguous pairs between consecutive local maps,
     with the join's own pair covariance; chi-square(2) when the noise model is right."""
     cfg = vp.slam_config()
@@ -96,7 +101,7 @@ def join_pair_distances(vp, features_per_map=30, max_steps=3000):
             point, J_robot, J_feature = G.transform_point(robot, feature, jacobians=True)
             gaps = np.hypot(*(first.landmarks - point).T)
             order = np.argsort(gaps)
-            if len(gaps) < 2 or gaps[order[0]] > 1.0 or gaps[order[1]] < 3.0:
+            if len(gaps) < 2 or gaps[order[0]] > near or gaps[order[1]] < far:
                 continue
             i = int(order[0])
             # h = f_i - robot ⊕ f_j: the robot and f_i are correlated in the first map.
@@ -123,10 +128,20 @@ def main():
                         help="multiplies every odometry sigma (to see the NIS move)")
     parser.add_argument("--sigma-range", type=float, default=None)
     parser.add_argument("--sigma-bearing", type=float, default=None)
+    parser.add_argument("--floor-xy", type=float, default=None,
+                        help="floor_sigma_xy [m/sqrt(s)] (default: the dataset's)")
+    parser.add_argument("--floor-phi", type=float, default=None,
+                        help="floor_sigma_phi [rad/sqrt(s)] (default: the dataset's)")
+    parser.add_argument("--map-sizes", default="30,60,120,240",
+                        help="features per local map for the join test, comma-separated")
     args = parser.parse_args()
     defaults = dcslam.datasets.VICTORIA_PARK_DEFAULTS
     odometry = {name: defaults[name] * args.scale for name in
                 ("sigma_speed", "sigma_steering", "floor_sigma_xy", "floor_sigma_phi")}
+    if args.floor_xy is not None:
+        odometry["floor_sigma_xy"] = args.floor_xy
+    if args.floor_phi is not None:
+        odometry["floor_sigma_phi"] = args.floor_phi
     measurement = {"sigma_range": args.sigma_range or defaults["sigma_range"],
                    "sigma_bearing": args.sigma_bearing or defaults["sigma_bearing"]}
     vp = dcslam.datasets.victoria_park(steering=args.steering, **odometry, **measurement)
@@ -143,10 +158,17 @@ def main():
               f"median NIS {np.median(nis):5.2f}, share below 5.99: {np.mean(nis < 5.99):.2f}, "
               f"range/bearing robust std {robust_std(residuals[:, 0]):.3f} m / "
               f"{robust_std(residuals[:, 1]):.4f} rad")
-    distances, separations = join_pair_distances(vp, max_steps=len(vp.steps))
-    print(f"join pairs of consecutive local maps: {len(distances)} pairs, median distance "
-          f"{np.median(separations):.2f} m, median squared Mahalanobis {np.median(distances):.2f} "
-          f"(chi2(2): 1.39), share below 9.21: {np.mean(distances < 9.21):.2f}")
+    # Bigger maps span longer stretches of the drive: systematic odometry errors (wheel radius,
+    # slip, steering bias) grow with the span, white noise only with its square root. Their
+    # pairs drift farther apart, so the unambiguity radii grow with the map (1 m / 3 m at 30
+    # features).
+    for size in (int(s) for s in args.map_sizes.split(",")):
+        scale = max(1.0, np.sqrt(size / 30))
+        distances, separations = join_pair_distances(vp, size, len(vp.steps), scale, 3 * scale)
+        print(f"join pairs of consecutive local maps of {size} features: {len(distances)} pairs, "
+              f"median distance {np.median(separations):.2f} m, median squared Mahalanobis "
+              f"{np.median(distances):.2f} (chi2(2): 1.39), share below 9.21: "
+              f"{np.mean(distances < 9.21):.2f}")
 
 
 if __name__ == "__main__":

@@ -37,7 +37,7 @@ VICTORIA_PARK_DEFAULTS = dict(
     sigma_bearing=0.016,
     sigma_speed=0.6,
     sigma_steering=0.1,
-    floor_sigma_xy=0.02,
+    floor_sigma_xy=0.14,
     floor_sigma_phi=0.002,
 )
 
@@ -200,7 +200,7 @@ def victoria_park(data_dir: Optional[PathLike] = None, **options) -> VictoriaPar
         sigma_range, sigma_bearing: measurement noise [m], [rad] (0.2, 0.016).
         sigma_speed, sigma_steering: odometry noise per 40 Hz sample [m/s], [rad] (0.6, 0.1).
         floor_sigma_xy, floor_sigma_phi: additive motion noise per sqrt(second) [m], [rad]
-            (0.02, 0.002).
+            (0.14, 0.002).
 
     Raises:
         ValueError: unknown option or bad value; :class:`dcslam.ParseError` for a malformed

@@ -1,7 +1,8 @@
-"""Both filters on the first 1500 scans of Victoria Park (about 5 min of driving, the first
-loop): what they agree on today, and the paper's "essentially the same map" as an open target.
-Numbers measured with the defaults of docs/victoria_park.md: EKF 236 landmarks, D&C 341,
-GPS RMS 4.9 m for both (poses from the final map), map agreement at 1 m 22 % / 18 %."""
+"""Both filters on Victoria Park: the first 1500 scans (about 5 min of driving, the first
+loop) and the whole run, and the paper's "essentially the same map" as an open target.
+Numbers measured with the defaults of docs/victoria_park.md: first 1500 scans EKF 177
+landmarks, D&C 209, GPS RMS 4.5 m for both (poses from the final map), map agreement at 1 m
+88 % / 87 %; whole run EKF 412, D&C 618, GPS RMS 4.3 / 4.8 m, agreement 90 % / 89 %."""
 
 import numpy as np
 import pytest
@@ -37,9 +38,27 @@ def test_map_sizes_are_close_enough(runs):
     assert ekf <= dc <= 1.7 * ekf
 
 
-@pytest.mark.xfail(strict=True, reason="D&C and EKF maps still differ by metres (docs/victoria_park.md)")
-def test_maps_are_essentially_the_same(runs):
-    agreement = map_agreement(runs["dc"].estimate, runs["ekf"].estimate, radius=1.0)
+@pytest.fixture(scope="module")
+def whole_runs(victoria_park):
+    cfg = victoria_park.slam_config()
+    return {name: SlamPipeline(victoria_park.steps, cfg, filter=name).run() for name in ("ekf", "dc")}
+
+
+def test_dc_closes_the_parks_loops_like_the_ekf(victoria_park, whole_runs):
+    # Before the long-span odometry floor, D&C's large joins paired almost nothing: 1,500
+    # landmarks, 40 m from GPS, 7 % / 15 % agreement.
+    for result in whole_runs.values():
+        from_map = gps_alignment(*map_trajectory(result, victoria_park.steps), victoria_park.gps)
+        assert from_map.rms < 6.0, result.filter_name
+    biggest = max(whole_runs["dc"].joins, key=lambda join: join["leaves"])
+    assert biggest["pairings"] > biggest["overlap"] / 2
+    agreement = map_agreement(whole_runs["dc"].estimate, whole_runs["ekf"].estimate, radius=1.0)
+    assert min(agreement.first_in_second, agreement.second_in_first) > 0.8
+
+
+@pytest.mark.xfail(strict=True, reason="D&C keeps duplicates its joins did not merge (docs/victoria_park.md)")
+def test_maps_are_essentially_the_same(whole_runs):
+    agreement = map_agreement(whole_runs["dc"].estimate, whole_runs["ekf"].estimate, radius=1.0)
     assert min(agreement.first_in_second, agreement.second_in_first) >= 0.95
 
 
