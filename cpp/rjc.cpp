@@ -78,6 +78,13 @@ int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel
   if (cholesky.info() != Eigen::Success) {
     throw InvalidArgument("enforce_joint_compatibility: joint covariance not positive definite");
   }
+  // Usually the hypothesis passes as it is: then the factor alone decides (k^3 / 3), and the
+  // inverse (three times that) is only formed when pairings have to go.
+  const double whole_distance_sq = cholesky.matrixL().solve(innovation).squaredNorm();
+  if (whole_distance_sq <= chi2_quantile(2 * static_cast<int>(k), confidence)) {
+    if (joint_distance_sq != nullptr) *joint_distance_sq = whole_distance_sq;
+    return 0;
+  }
   information = cholesky.solve(Eigen::MatrixXd::Identity(2 * k, 2 * k));
 
   // Removing pairing a leaves (S_rr)^-1 = L_rr - L_ra L_aa^-1 L_ar (L = S^-1): the same

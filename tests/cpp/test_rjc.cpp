@@ -219,6 +219,10 @@ TEST(Rjc, VerificationDropsTheInconsistentPairing) {
   EXPECT_EQ(enforce_joint_compatibility(feature_of, problem.model, 0.99, &distance_sq), 1);
   EXPECT_EQ(feature_of, problem.truth);
   EXPECT_NEAR(distance_sq, joint_distance_sq(problem.truth, problem.model), 1e-8);
+  // A compatible hypothesis is left as it is, with its own D^2.
+  EXPECT_EQ(enforce_joint_compatibility(feature_of, problem.model, 0.99, &distance_sq), 0);
+  EXPECT_EQ(feature_of, problem.truth);
+  EXPECT_NEAR(distance_sq, joint_distance_sq(problem.truth, problem.model), 1e-8);
 }
 
 TEST(Rjc, RejectsBadOptions) {
