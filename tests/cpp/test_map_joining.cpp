@@ -492,5 +492,42 @@ TEST(IteratedJoin, RejectsANonPositiveIterationCount) {
   EXPECT_THROW(join_maps(m1, m2, options), InvalidArgument);
 }
 
+// At a linearisation point x* other than the prior means, the frame's blocks are those of
+// G* P0 G*' and its moved means are g(x*) + G* (x0 - x*), G* by central differences.
+TEST(JoinFrame, LinearisedElsewhereGivesTheLinearisedMeansAndCovariance) {
+  std::mt19937_64 rng(78);
+  const GaussianMap m1 = random_map(rng, {0, 1, 2});
+  const GaussianMap m2 = random_map(rng, {10, 11, 12});
+  const Index d1 = m1.dim(), d2 = m2.dim(), D = d1 + d2;
+  const Vec3 robot_at = m1.robot() + Vec3(0.7, -0.4, 0.3);
+  Eigen::VectorXd second_at = m2.x();
+  for (Index a = 0; a < d2; ++a) second_at(a) += 0.5 * std::sin(1.0 + a);
+  const JoinFrame frame(m1, m2, robot_at, second_at);
+
+  Eigen::VectorXd x0(D), x_at(D);
+  x0 << m1.x(), m2.x();
+  x_at << m1.x(), second_at;
+  x_at.head<3>() = robot_at;
+  const auto g = [&](const Eigen::VectorXd& x) { return oracle_to_base_one(x, d1); };
+  const Eigen::MatrixXd G = testing::numeric_jacobian(g, x_at);
+  const Eigen::VectorXd y = g(x_at) + G * (x0 - x_at);
+  Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(D, D);
+  P0.topLeftCorner(d1, d1) = m1.P();
+  P0.bottomRightCorner(d2, d2) = m2.P();
+  const Eigen::MatrixXd P = G * P0 * G.transpose();
+  const Vec3 robot = frame.moved_second_robot();
+  EXPECT_LT((robot.head<2>() - y.segment<2>(d1)).norm(), 1e-8);
+  EXPECT_LT(std::abs(wrap_angle(robot.z() - y(d1 + 2))), 1e-8);
+  for (Index j = 0; j < 3; ++j) {
+    const Index row2 = d1 + 3 + 2 * j;
+    EXPECT_LT((frame.moved_second_feature(j) - y.segment<2>(row2)).norm(), 1e-8);
+    for (Index i = 0; i < 3; ++i) {
+      EXPECT_LT((frame.first_second(i, j) - P.block<2, 2>(3 + 2 * i, row2)).norm(), 1e-7);
+      EXPECT_LT((frame.second_second(i, j) - P.block<2, 2>(d1 + 3 + 2 * i, row2)).norm(), 1e-7);
+    }
+  }
+  EXPECT_THROW(JoinFrame(m1, m2, robot_at, second_at.head(d2 - 1)), InvalidArgument);
+}
+
 }  // namespace
 }  // namespace dcslam
