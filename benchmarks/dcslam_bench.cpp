@@ -552,10 +552,11 @@ int command_vp(const Args& args) {
               options.sigma_bearing, options.odometry.sigma_speed, options.odometry.sigma_steering,
               options.odometry.floor_sigma_xy, options.odometry.floor_sigma_phi);
   std::printf("  config: range_bearing, sensor offset (%g, %g, %g), association %s, join %s, gate %g, "
-              "local maps of %d features, min_sightings %d, tentative_window %d\n",
+              "local maps of %d features, min_sightings %d, tentative_window %d, join_iterations %d\n",
               config.sensor_offset.x(), config.sensor_offset.y(), config.sensor_offset.z(),
               to_string(config.association), to_string(config.join_association), config.gate_confidence,
-              config.local_map_features, config.min_sightings, config.tentative_window);
+              config.local_map_features, config.min_sightings, config.tentative_window,
+              config.join_iterations);
   return report("vp", args, static_cast<int>(steps.size()), run_filters(args, config, steps, nullptr));
 }
 
