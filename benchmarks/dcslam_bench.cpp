@@ -55,6 +55,7 @@ Options of sim, scaling, vp and isam:
   --filter ekf|dc|both                                              [both]
   --joins immediate|amortized|threaded                              [amortized]
   --local-map-features P                                           [30]
+  --join-iterations K  linearisation points per join (1: one-shot)  [10]
   --seed S                                                          [0]
   --json FILE          write per-step times and totals as JSON
 
@@ -290,6 +291,7 @@ RunResult run_filter(const std::string& filter, const SlamConfig& config,
 // The options every filter run takes from the command line, whatever the data.
 void apply_run_options(const Args& args, SlamConfig& config) {
   config.local_map_features = static_cast<int>(number(args, "local-map-features", 30));
+  config.join_iterations = static_cast<int>(number(args, "join-iterations", 10));
   const std::string joins = get(args, "joins", "amortized");
   if (joins != "immediate" && joins != "amortized" && joins != "threaded") {
     throw InvalidArgument("dcslam_bench: --joins must be immediate, amortized or threaded");
@@ -373,9 +375,13 @@ void print_result(const RunResult& r) {
     const auto biggest = std::max_element(r.joins.begin(), r.joins.end(), [](const auto& a, const auto& b) {
       return a.report.features_joined < b.report.features_joined;
     });
-    std::printf("       joins %zu, biggest %lld features in %.3f s (%.1fx one stream of the final P)\n",
+    int most_iterations = 0;
+    for (const JoinEvent& e : r.joins) most_iterations = std::max(most_iterations, e.report.iterations);
+    std::printf("       joins %zu, biggest %lld features in %.3f s (%.1fx one stream of the final P); "
+                "at most %d linearisation points\n",
                 r.joins.size(), static_cast<long long>(biggest->report.features_joined),
-                biggest->report.seconds_total, biggest->report.seconds_total / r.stream_seconds);
+                biggest->report.seconds_total, biggest->report.seconds_total / r.stream_seconds,
+                most_iterations);
   }
 }
 
@@ -462,7 +468,8 @@ void write_json(const std::string& path, const std::string& command, const Args&
             << ", \"step_finished\": " << e.step_finished
             << ", \"features_joined\": " << e.report.features_joined
             << ", \"pairings\": " << e.report.pairings << ", \"overlap\": " << e.report.overlap
-            << ", \"tries\": " << e.report.tries << ", \"seconds\": " << e.report.seconds_total
+            << ", \"tries\": " << e.report.tries << ", \"iterations\": " << e.report.iterations
+            << ", \"seconds\": " << e.report.seconds_total
             << ", \"seconds_association\": " << e.report.seconds_association << "}";
       }
       const bool last = r + 1 == runs.size() && f + 1 == runs[r].second.size();
@@ -545,10 +552,11 @@ int command_vp(const Args& args) {
               options.sigma_bearing, options.odometry.sigma_speed, options.odometry.sigma_steering,
               options.odometry.floor_sigma_xy, options.odometry.floor_sigma_phi);
   std::printf("  config: range_bearing, sensor offset (%g, %g, %g), association %s, join %s, gate %g, "
-              "local maps of %d features, min_sightings %d, tentative_window %d\n",
+              "local maps of %d features, min_sightings %d, tentative_window %d, join_iterations %d\n",
               config.sensor_offset.x(), config.sensor_offset.y(), config.sensor_offset.z(),
               to_string(config.association), to_string(config.join_association), config.gate_confidence,
-              config.local_map_features, config.min_sightings, config.tentative_window);
+              config.local_map_features, config.min_sightings, config.tentative_window,
+              config.join_iterations);
   return report("vp", args, static_cast<int>(steps.size()), run_filters(args, config, steps, nullptr));
 }
 

@@ -21,6 +21,7 @@ py::dict join_event_dict(const JoinEvent& event) {
   out["overlap"] = event.report.overlap;
   out["pairings"] = event.report.pairings;
   out["tries"] = event.report.tries;
+  out["iterations"] = event.report.iterations;
   out["seconds"] = event.report.seconds_total;
   out["seconds_association"] = event.report.seconds_association;
   out["work_units"] = event.report.work_units;

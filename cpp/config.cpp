@@ -63,6 +63,8 @@ void SlamConfig::validate() const {
           "rjc_p_good: must lie in (0, 1), got " + std::to_string(rjc_p_good));
   require(rjc_p_fail > 0.0 && rjc_p_fail < 1.0,
           "rjc_p_fail: must lie in (0, 1), got " + std::to_string(rjc_p_fail));
+  require(join_iterations >= 1,
+          "join_iterations: must be >= 1, got " + std::to_string(join_iterations));
 }
 
 }  // namespace dcslam

@@ -42,22 +42,50 @@ Eigen::Matrix<double, 2, 3> point_jacobian(const Vec2& rotated) {
 
 // ---------------------------------------------------------------------------------------
 JoinFrame::JoinFrame(const GaussianMap& first, const GaussianMap& second)
-    : first_(first), second_(second), T_(first.robot()) {
+    : JoinFrame(first, second, first.robot(), second.x()) {}
+
+JoinFrame::JoinFrame(const GaussianMap& first, const GaussianMap& second,
+                     const Vec3& first_robot, const Eigen::VectorXd& second_x)
+    : first_(first), second_(second), T_(first_robot), second_x_(second_x) {
+  if (second_x_.size() != second.dim()) {
+    throw InvalidArgument("JoinFrame: the linearisation point of m2 has " +
+                          std::to_string(second_x_.size()) + " entries, m2 has " +
+                          std::to_string(second.dim()));
+  }
   const double c = std::cos(T_.z()), s = std::sin(T_.z());
   rotation_ << c, -s, s, c;
   J_R_.resize(second.dim(), 3);
-  J_R_.topRows<3>() << point_jacobian(rotation_ * second.robot().head<2>()), 0, 0, 1;
+  J_R_.topRows<3>() << point_jacobian(rotation_ * second_x_.head<2>()), 0, 0, 1;
   for (Index j = 0; j < second.num_features(); ++j) {
     J_R_.middleRows<2>(GaussianMap::feature_offset(j)) =
-        point_jacobian(rotation_ * second.feature(j));
+        point_jacobian(rotation_ * second_x_.segment<2>(GaussianMap::feature_offset(j)));
   }
 }
 
-Vec2 JoinFrame::moved_second_feature(Index j) const {
-  return T_.head<2>() + rotation_ * second_.feature(j);
+// G*(x0 - x*) for an element p of m2 (prior mean p0, linearised at p_lin):
+// J_R (R1_0 - R1*) + Rot* (p0 - p_lin). Exactly zero at x* = x0, so the one-shot join's moved
+// means come out unchanged.
+Vec2 JoinFrame::linearisation_offset(const Vec2& p0, const Vec2& p_lin) const {
+  const Vec2 rotated = rotation_ * p_lin;
+  const Vec3 robot_offset = first_.robot() - T_;
+  return robot_offset.head<2>() + Vec2(-rotated.y(), rotated.x()) * robot_offset.z() +
+         rotation_ * (p0 - p_lin);
 }
 
-Vec3 JoinFrame::moved_second_robot() const { return compose(T_, second_.robot()); }
+Vec2 JoinFrame::moved_second_feature(Index j) const {
+  const Vec2 p_lin = second_x_.segment<2>(GaussianMap::feature_offset(j));
+  return T_.head<2>() + rotation_ * p_lin + linearisation_offset(second_.feature(j), p_lin);
+}
+
+// The heading is linear in the headings: the result is their prior sum, wrapped only at the
+// linearisation point (the caller wraps the final value).
+Vec3 JoinFrame::moved_second_robot() const {
+  const Vec3 robot_lin = second_x_.head<3>();
+  Vec3 moved = compose(T_, robot_lin);
+  moved.head<2>() += linearisation_offset(second_.robot().head<2>(), robot_lin.head<2>());
+  moved.z() += (first_.robot().z() - T_.z()) + (second_.robot().z() - robot_lin.z());
+  return moved;
+}
 
 Mat2 JoinFrame::first_first(Index i, Index k) const {
   return first_.P().block<2, 2>(GaussianMap::feature_offset(i), GaussianMap::feature_offset(k));
@@ -114,6 +142,10 @@ MapJoin::MapJoin(std::shared_ptr<const GaussianMap> first,
   };
   check(first_tentative_, first_->num_features(), "first");
   check(second_tentative_, second_->num_features(), "second");
+  if (options_.max_iterations < 1) {
+    throw InvalidArgument("MapJoin: max_iterations must be >= 1, got " +
+                          std::to_string(options_.max_iterations));
+  }
   options_.block_columns = std::max<Index>(2, options_.block_columns & ~Index{1});
   report_.features_first = first_->num_features();
   report_.features_second = second_->num_features();
@@ -147,7 +179,9 @@ std::int64_t MapJoin::remaining_work() const {
       // known; a later deadline absorbs that, where an upper bound would inflate every budget).
       return work + static_cast<std::int64_t>(solve_rows);
     case Phase::Constrain:
-      return work + static_cast<std::int64_t>(solve_rows) * solve_row_cost();
+      // Re-linearisation: at most max_iterations - 1 steps, tiny next to the fill.
+      return work + static_cast<std::int64_t>(solve_rows) * solve_row_cost() +
+             (pairs_.empty() ? 0 : (options_.max_iterations - 1) * relinearise_step_cost());
     case Phase::Solve:
       return work + static_cast<std::int64_t>(gain_.rows() - next_solve_row_) * solve_row_cost();
     default:
@@ -169,6 +203,7 @@ std::int64_t MapJoin::advance(std::int64_t budget) {
         break;
       }
       case Phase::Constrain: {
+        spent += relinearise();
         constrain();
         const std::int64_t r = static_cast<std::int64_t>(pairs_.size());
         spent += static_cast<std::int64_t>(gain_.rows()) + r * r;
@@ -258,11 +293,116 @@ void MapJoin::associate() {
   report_.dropped_tentative = static_cast<int>(dropped_ids_.size());
 }
 
-// Kept elements of m2 and the constraints' P H', S = L L' and L^-1 h (O(n r + r^3)).
+// One Gauss–Newton step over s = [R1; matched f_i; matched f_j]: the sparse products with
+// H (7 non-zeros a row) and the Cholesky factor of the 2r x 2r S, in units of eight
+// multiply-adds.
+std::int64_t MapJoin::relinearise_step_cost() const {
+  const auto r = static_cast<std::int64_t>(pairs_.size());
+  return std::max<std::int64_t>(1, (14 * r * (3 + 6 * r) + 8 * r * r * r / 3) / 8);
+}
+
+// The iterated EKF with noise-free constraints c(x) = f_i - (R1 ⊕ f_j) = 0, i.e. Gauss–Newton
+// on the constrained MAP: x+ = x0 + P0 H' λ, λ = (H P0 H')^-1 (-c(x) - H (x0 - x)), H = dc/dx
+// at x. Only s enters c, so the steps are taken in s with its prior covariance P_ss (blocks of
+// P1 and P2); m2's other elements then follow as x0 + P0 H' λ with the last λ, O(n r). The
+// pipeline takes the final step itself, linearised at the point found here.
+std::int64_t MapJoin::relinearise() {
+  const GaussianMap& m1 = *first_;
+  const GaussianMap& m2 = *second_;
+  lin_first_robot_ = m1.robot();
+  lin_second_x_ = m2.x();
+  const Index r = static_cast<Index>(pairs_.size());
+  report_.iterations = r > 0 ? 1 : 0;
+  if (r == 0 || options_.max_iterations == 1) return 0;
+
+  const Index ds = 3 + 4 * r, second_begin = 3 + 2 * r;
+  std::vector<Index> rows1 = {0, 1, 2}, rows2;
+  for (const auto& [i, j] : pairs_) {
+    rows1.push_back(GaussianMap::feature_offset(i));
+    rows1.push_back(GaussianMap::feature_offset(i) + 1);
+    rows2.push_back(GaussianMap::feature_offset(j));
+    rows2.push_back(GaussianMap::feature_offset(j) + 1);
+  }
+  Eigen::VectorXd s0(ds);
+  Eigen::MatrixXd P_ss = Eigen::MatrixXd::Zero(ds, ds);
+  const auto gather = [&](const GaussianMap& map, const std::vector<Index>& rows, Index at) {
+    const Index n = static_cast<Index>(rows.size());
+    for (Index a = 0; a < n; ++a) {
+      s0(at + a) = map.x()(rows[static_cast<std::size_t>(a)]);
+      for (Index b = 0; b < n; ++b) {
+        P_ss(at + a, at + b) =
+            map.P()(rows[static_cast<std::size_t>(a)], rows[static_cast<std::size_t>(b)]);
+      }
+    }
+  };
+  gather(m1, rows1, 0);
+  gather(m2, rows2, second_begin);
+  // Converged when no coordinate moves by more than 1e-9 of its prior standard deviation
+  // (or, for one known almost exactly, a few ulps of its value).
+  const Eigen::ArrayXd tolerance =
+      1e-9 * P_ss.diagonal().array().sqrt() + 1e-14 * s0.array().abs();
+
+  Eigen::VectorXd s = s0, lambda(2 * r), next(ds);
+  Eigen::MatrixXd PHt(ds, 2 * r), S(2 * r, 2 * r);
+  std::vector<Eigen::Matrix<double, 2, 3>> J_robot(static_cast<std::size_t>(r));
+  Eigen::VectorXd rhs(2 * r);
+  Mat2 rotation;
+  int steps = 0;
+  while (steps + 1 < options_.max_iterations) {
+    const double c = std::cos(s(2)), sn = std::sin(s(2));
+    rotation << c, -sn, sn, c;
+    const Eigen::VectorXd offset = s0 - s;
+    for (Index k = 0; k < r; ++k) {
+      // Rows of H for pair k: -J_R on R1, I on f_i, -Rot on f_j.
+      const Vec2 rotated = rotation * s.segment<2>(second_begin + 2 * k);
+      auto& J = J_robot[static_cast<std::size_t>(k)];
+      J = point_jacobian(rotated);
+      const Vec2 constraint = s.segment<2>(3 + 2 * k) - s.head<2>() - rotated;
+      const Vec2 H_offset = offset.segment<2>(3 + 2 * k) - J * offset.head<3>() -
+                            rotation * offset.segment<2>(second_begin + 2 * k);
+      rhs.segment<2>(2 * k) = -constraint - H_offset;
+      PHt.middleCols<2>(2 * k).noalias() = P_ss.middleCols<2>(3 + 2 * k);
+      PHt.middleCols<2>(2 * k).noalias() -= P_ss.leftCols<3>() * J.transpose();
+      PHt.middleCols<2>(2 * k).noalias() -=
+          P_ss.middleCols<2>(second_begin + 2 * k) * rotation.transpose();
+    }
+    for (Index k = 0; k < r; ++k) {
+      S.middleRows<2>(2 * k).noalias() = PHt.middleRows<2>(3 + 2 * k);
+      S.middleRows<2>(2 * k).noalias() -= J_robot[static_cast<std::size_t>(k)] * PHt.topRows<3>();
+      S.middleRows<2>(2 * k).noalias() -= rotation * PHt.middleRows<2>(second_begin + 2 * k);
+    }
+    S = 0.5 * (S + S.transpose()).eval();
+    const Eigen::LLT<Eigen::MatrixXd> llt(S);
+    if (llt.info() != Eigen::Success) {
+      throw std::runtime_error(
+          "map join: the covariance of the matched-pair constraints is not positive definite "
+          "(two matched features are perfectly correlated)");
+    }
+    lambda = llt.solve(rhs);
+    next = s0;
+    next.noalias() += PHt * lambda;
+    const bool converged = ((next - s).array().abs() <= tolerance).all();
+    s = next;
+    ++steps;
+    if (converged) break;
+  }
+  report_.iterations = steps + 1;
+  lin_first_robot_ = s.head<3>();
+  // m2's rows of P0 H' λ: its prior covariance with each f_j times (dc_k/df_j)' λ_k.
+  const auto P2 = m2.P();
+  for (Index k = 0; k < r; ++k) {
+    const Vec2 pulled = -rotation.transpose() * lambda.segment<2>(2 * k);
+    lin_second_x_.noalias() += P2.middleCols(rows2[static_cast<std::size_t>(2 * k)], 2) * pulled;
+  }
+  return steps * relinearise_step_cost() + static_cast<std::int64_t>(m2.dim()) * r / 4;
+}
+
+// Kept elements of m2 and the constraints' P H', S = L L' and L^-1 h (O(n r + r^3)), linearised
+// at the point relinearise() found.
 void MapJoin::constrain() {
   const GaussianMap& m1 = *first_;
   const GaussianMap& m2 = *second_;
-  const JoinFrame frame(m1, m2);
+  const JoinFrame frame(m1, m2, lin_first_robot_, lin_second_x_);
   rotation_ = frame.rotation();
   const Index n1 = m1.num_features(), n2 = m2.num_features();
   const Index d2 = m2.dim();
@@ -346,7 +486,7 @@ std::int64_t MapJoin::solve_next_rows() {
 void MapJoin::assemble() {
   const GaussianMap& m1 = *first_;
   const GaussianMap& m2 = *second_;
-  const JoinFrame frame(m1, m2);
+  const JoinFrame frame(m1, m2, lin_first_robot_, lin_second_x_);
   const Index d1k = static_cast<Index>(first_kept_rows_.size());
   const Index r = static_cast<Index>(pairs_.size());
   const Index d2k = static_cast<Index>(second_kept_rows_.size());
@@ -521,6 +661,7 @@ std::int64_t MapJoin::fill_next_block() {
 void MapJoin::release_inputs() {
   first_.reset();
   second_.reset();
+  lin_second_x_ = Eigen::VectorXd();
   left_ = Eigen::MatrixXd();
   right_first_ = Eigen::MatrixXd();
   right_second_ = Eigen::MatrixXd();

@@ -66,11 +66,12 @@ def noise_free_steps(sim) -> List[IdealStep]:
     return steps
 
 
-def make_filters(local_map_features: int, seed: int) -> Dict[str, dcslam.SlamFilter]:
+def make_filters(local_map_features: int, seed: int, join_iterations: int) -> Dict[str, dcslam.SlamFilter]:
     cfg = dcslam.SlamConfig(
         association="known",
         join_association="known",
         local_map_features=local_map_features,
+        join_iterations=join_iterations,
         seed=seed,
     )
     return {"ekf": dcslam.EkfSlam(cfg), "dc": dcslam.DCSlam(cfg)}
@@ -82,7 +83,7 @@ def checkpoints(steps: int, every: int) -> np.ndarray:
 
 
 def monte_carlo(runs: int, steps: int, seed: int, every: int, local_map_features: int,
-                alpha: float, ideal: bool) -> Dict[str, np.ndarray]:
+                alpha: float, ideal: bool, join_iterations: int) -> Dict[str, np.ndarray]:
     """Returns ``{"<filter>_<quantity>": (runs, checkpoints) array}`` and ``"step"``."""
     at = checkpoints(steps, every)
     heading_threshold = chi2_threshold(1, alpha)
@@ -90,8 +91,8 @@ def monte_carlo(runs: int, steps: int, seed: int, every: int, local_map_features
     result = {f"{f}_{q}": np.full((runs, len(at)), np.nan) for f in FILTERS for q in QUANTITIES}
     for run in range(runs):
         sim = dcslam.simulate("straight", steps=steps, seed=seed + run)
-        noisy = make_filters(local_map_features, seed + run)
-        exact = make_filters(local_map_features, seed + run) if ideal else {}
+        noisy = make_filters(local_map_features, seed + run, join_iterations)
+        exact = make_filters(local_map_features, seed + run, join_iterations) if ideal else {}
         exact_steps = noise_free_steps(sim) if ideal else []
         begin = 0
         for c, end in enumerate(at):
@@ -212,6 +213,8 @@ def main(argv=None) -> int:
     parser.add_argument("--every", type=int, default=5, help="measure every k-th step")
     parser.add_argument("--local-map-features", type=int, default=30)
     parser.add_argument("--alpha", type=float, default=0.05)
+    parser.add_argument("--join-iterations", type=int, default=dcslam.SlamConfig().join_iterations,
+                        help="D&C: linearisation points of each join (1: the one-shot join)")
     parser.add_argument("--no-ideal", action="store_true",
                         help="skip the noise-free runs behind the theoretical 2-sigma bounds")
     parser.add_argument("--png", type=Path, default=Path("results/fig4_consistency.png"))
@@ -223,7 +226,7 @@ def main(argv=None) -> int:
 
     started = time.perf_counter()
     result = monte_carlo(args.runs, args.steps, args.seed, args.every, args.local_map_features,
-                         args.alpha, ideal=not args.no_ideal)
+                         args.alpha, ideal=not args.no_ideal, join_iterations=args.join_iterations)
     curves = mean_curves(result)
     summary = summarize(curves, args.runs, args.local_map_features)
     summary["seconds"] = round(time.perf_counter() - started, 1)

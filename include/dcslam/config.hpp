@@ -36,6 +36,9 @@ struct SlamConfig {
   int rjc_b = 4;
   double rjc_p_good = 0.8;
   double rjc_p_fail = 0.01;
+  // D&C: linearisation points of each join's constraint update (iterated EKF; 1 = the
+  // one-shot join linearised at the prior means).
+  int join_iterations = 10;
   std::uint64_t seed = 0;
   bool amortize = true;
   // D&C: run joins on a background worker thread instead (the multi-core form of the

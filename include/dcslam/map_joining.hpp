@@ -31,6 +31,10 @@ struct JoinOptions {
   std::uint64_t seed = 0;
   // Width of the column blocks the result is written in: the unit of resumable work.
   Eigen::Index block_columns = 64;
+  // Linearisation points of the constraint update (Gauss–Newton steps of the iterated EKF,
+  // docs/divide_and_conquer.md): 1 linearises ⊕ once at the prior means (the one-shot join);
+  // more re-linearise at the constrained estimate until the step is negligible.
+  int max_iterations = 10;
 };
 
 struct JoinReport {
@@ -41,6 +45,7 @@ struct JoinReport {
   int pairings = 0;  // matched pairs imposed as constraints
   int tries = 0;     // RJC hypotheses tried (0 for other modes)
   int dropped_tentative = 0;  // tentative features left unmatched (marginalised)
+  int iterations = 0;  // linearisation points of the constraint update (0 when r = 0)
   double seconds_association = 0.0;
   double seconds_total = 0.0;  // summed over all the slices the join was run in
   std::int64_t work_units = 0;  // covariance elements written plus association/preparation
@@ -49,15 +54,21 @@ struct JoinReport {
 // Covariance blocks of the stacked map [R1; F1; R2'; F2'] (m2 moved into B1 by
 // x_{B1 R1} ⊕ ·), computed on demand in O(1) each, without building the stacked matrix.
 // Feature indices are local: i indexes m1's features, j indexes m2's.
+//
+// ⊕ is linearised at a point x* = (R1*, m2*), by default the prior means. The moved means
+// are then the linearised values g(x*) + G*(x0 - x*), which with x* = x0 are g(x0).
 class JoinFrame {
  public:
   JoinFrame(const GaussianMap& first, const GaussianMap& second);
+  // Linearised at R1 = first_robot and m2's state vector = second_x (sized as second.x()).
+  JoinFrame(const GaussianMap& first, const GaussianMap& second, const Vec3& first_robot,
+            const Eigen::VectorXd& second_x);
 
   const GaussianMap& first() const { return first_; }
   const GaussianMap& second() const { return second_; }
 
   Vec2 first_feature(Eigen::Index i) const { return first_.feature(i); }
-  // m2's feature j expressed in B1.
+  // m2's feature j and robot moved into B1 (the linearised values above).
   Vec2 moved_second_feature(Eigen::Index j) const;
   Vec3 moved_second_robot() const;
 
@@ -76,9 +87,12 @@ class JoinFrame {
   const Mat2& rotation() const { return rotation_; }
 
  private:
+  Vec2 linearisation_offset(const Vec2& p0, const Vec2& p_lin) const;
+
   const GaussianMap& first_;
   const GaussianMap& second_;
-  Vec3 T_;  // x_{B1 R1}
+  Vec3 T_;  // x_{B1 R1} at the linearisation point
+  Eigen::VectorXd second_x_;  // m2's state at the linearisation point
   Mat2 rotation_;
   Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_;
 };
@@ -106,7 +120,8 @@ class MapJoin {
   std::int64_t advance(std::int64_t budget);
   void finish();
   bool done() const { return phase_ == Phase::Done; }
-  // Work left, in the units of advance(); exact once association is done, an estimate before.
+  // Work left, in the units of advance(); exact once the constraints are linearised, an
+  // estimate before (an upper bound on the re-linearisation steps).
   std::int64_t remaining_work() const;
 
   // The joined map; valid once done(). Leaves the join empty.
@@ -121,6 +136,10 @@ class MapJoin {
  private:
   enum class Phase { Associate, Constrain, Solve, Assemble, Fill, Done };
   void associate();
+  // Gauss–Newton on the constrained MAP over the variables the constraints involve; sets the
+  // linearisation point (lin_first_robot_, lin_second_x_) and returns the work it did.
+  std::int64_t relinearise();
+  std::int64_t relinearise_step_cost() const;
   void constrain();
   std::int64_t solve_next_rows();
   void assemble();
@@ -151,6 +170,8 @@ class MapJoin {
   std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids_;
   std::vector<std::int64_t> dropped_ids_;
   std::vector<char> second_dropped_;  // per m2 feature: a tentative one left unmatched
+  Vec3 lin_first_robot_ = Vec3::Zero();
+  Eigen::VectorXd lin_second_x_;
 
   // Prepared for the fill. Every block of the result is a "base" (a block of P1, or of
   // J_2 P2 J_2') plus a low-rank term L N' with inner dimension 3 + 2r:

@@ -88,10 +88,12 @@ ASSOCIATION_OPTION = typer.Option(None, "--association", help="Data association 
 JOIN_ASSOCIATION_OPTION = typer.Option(None, "--join-association", help="Data association at D&C joins "
                                        "(default: the dataset's choice).")
 LOCAL_MAP_OPTION = typer.Option(None, "--local-map-features", min=1, help="D&C: close a local map at this many features.")
+JOIN_ITERATIONS_OPTION = typer.Option(None, "--join-iterations", min=1, help="D&C: linearisation points "
+                                      "of each join (1: the one-shot join; default: SlamConfig's).")
 PROGRESS_OPTION = typer.Option(None, "--progress/--no-progress", help="Progress bar (default: on a terminal).")
 
 
-def _config_with(cfg, association, join_association, local_map_features):
+def _config_with(cfg, association, join_association, local_map_features, join_iterations):
     """The dataset's config with the command line's overrides."""
     from .config import SlamConfig
 
@@ -102,6 +104,8 @@ def _config_with(cfg, association, join_association, local_map_features):
         values["join_association"] = join_association.value
     if local_map_features is not None:
         values["local_map_features"] = local_map_features
+    if join_iterations is not None:
+        values["join_iterations"] = join_iterations
     return SlamConfig.from_dict(values)
 
 
@@ -231,6 +235,7 @@ def run_victoria_park(
     association: Optional[AssociationChoice] = ASSOCIATION_OPTION,
     join_association: Optional[JoinAssociationChoice] = JOIN_ASSOCIATION_OPTION,
     local_map_features: Optional[int] = LOCAL_MAP_OPTION,
+    join_iterations: Optional[int] = JOIN_ITERATIONS_OPTION,
     progress: Optional[bool] = PROGRESS_OPTION,
 ) -> None:
     """SLAM on Victoria Park (ACFR): trees as landmarks, no ids, GPS as the reference.
@@ -244,7 +249,8 @@ def run_victoria_park(
         _fail("Victoria Park has no landmark ids: use --association nn|jcbb and --join-association rjc|jcbb")
     try:
         dataset = victoria_park(data_dir)
-        cfg = _config_with(dataset.slam_config(), association, join_association, local_map_features)
+        cfg = _config_with(dataset.slam_config(), association, join_association, local_map_features,
+                           join_iterations)
     except ValueError as error:
         _fail(str(error))
     _run_dataset("Victoria Park", dataset.steps, cfg, filter, output, max_steps, plots, progress, gps=dataset.gps,
@@ -262,6 +268,7 @@ def run_isam(
     association: Optional[AssociationChoice] = ASSOCIATION_OPTION,
     join_association: Optional[JoinAssociationChoice] = JOIN_ASSOCIATION_OPTION,
     local_map_features: Optional[int] = LOCAL_MAP_OPTION,
+    join_iterations: Optional[int] = JOIN_ITERATIONS_OPTION,
     progress: Optional[bool] = PROGRESS_OPTION,
 ) -> None:
     """SLAM on an iSAM/GTSAM 2D graph replayed as steps, with the file's landmark ids.
@@ -273,7 +280,8 @@ def run_isam(
 
     try:
         dataset = read_isam2d(file)
-        cfg = _config_with(dataset.slam_config(), association, join_association, local_map_features)
+        cfg = _config_with(dataset.slam_config(), association, join_association, local_map_features,
+                           join_iterations)
     except ValueError as error:
         _fail(str(error))
     _run_dataset(file.name, dataset.steps, cfg, filter, output, max_steps, plots, progress)

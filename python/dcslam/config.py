@@ -47,6 +47,10 @@ class SlamConfig:
         local_map_features: D&C closes a local map when it holds this many features.
         join_association: association at D&C joins: ``"rjc"``, ``"jcbb"`` or ``"known"``.
         rjc_b, rjc_p_good, rjc_p_fail: RJC (Paz et al. 2007, Alg. 3) parameters.
+        join_iterations: D&C: linearisation points of each join's constraint update (>= 1).
+            The join re-linearises the move of the second map into the first's frame at the
+            constrained estimate until it stops moving (an iterated EKF); 1 linearises once,
+            at the prior means (docs/divide_and_conquer.md).
         seed: every random choice is reproducible from it.
         amortize: D&C spreads each join over the following steps (DESIGN.md §5).
         threaded_joins: D&C runs joins on a background thread while mapping goes on
@@ -65,6 +69,7 @@ class SlamConfig:
     rjc_b: int = 4
     rjc_p_good: float = 0.8
     rjc_p_fail: float = 0.01
+    join_iterations: int = 10
     seed: int = 0
     amortize: bool = True
     threaded_joins: bool = False

@@ -189,8 +189,10 @@ class DCSlamStats(SlamStats):
         joins: one dict per join in creation order: ``index``, ``leaves`` (local maps in the
             result), ``step_created``, ``step_finished`` (-1 while pending),
             ``features_first``, ``features_second``, ``features_joined``, ``overlap``,
-            ``pairings``, ``tries`` (RJC), ``seconds`` (summed over the slices it ran in),
-            ``seconds_association``, ``work_units``.
+            ``pairings``, ``tries`` (RJC), ``iterations`` (linearisation points of the
+            constraint update, at most ``cfg.join_iterations``; 0 without pairings),
+            ``seconds`` (summed over the slices it ran in), ``seconds_association``,
+            ``work_units``.
         stack: (local maps, features) of each map on the stack, bottom first.
     """
 

@@ -7,6 +7,7 @@
 
 #include "dcslam/errors.hpp"
 #include "dcslam/map_joining.hpp"
+#include "numeric_jacobian.hpp"
 
 namespace dcslam {
 namespace {
@@ -122,13 +123,22 @@ TEST_P(MapJoiningTest, FusedJoinEqualsDenseTextbookJoin) {
   const GaussianMap m2 = random_map(rng, ids2);
   JoinOptions options;
   options.block_columns = c.block_columns;
+  options.max_iterations = 1;  // the textbook join linearises once, at the prior means
   JoinReport report;
   const GaussianMap joined = join_maps(m1, m2, options, &report);
   const auto pairs = associate_by_id(m1, m2);
   EXPECT_EQ(static_cast<int>(pairs.size()), c.shared);
   EXPECT_EQ(report.pairings, c.shared);
+  EXPECT_EQ(report.iterations, c.shared > 0 ? 1 : 0);
   expect_maps_equal(joined, dense_join(m1, m2, pairs), 1e-9);
   EXPECT_TRUE(joined.P().isApprox(joined.P().transpose(), 1e-12));
+  if (c.shared == 0) {  // no constraint, nothing to re-linearise: the same join
+    options.max_iterations = 10;
+    const GaussianMap iterated = join_maps(m1, m2, options, &report);
+    EXPECT_EQ(report.iterations, 0);
+    EXPECT_TRUE((iterated.x().array() == joined.x().array()).all());
+    EXPECT_TRUE((iterated.P().array() == joined.P().array()).all());
+  }
 }
 
 INSTANTIATE_TEST_SUITE_P(Cases, MapJoiningTest,
@@ -154,6 +164,7 @@ TEST_P(MapJoiningTentativeTest, DropsUnmatchedTentativeFeaturesOfTheFirstMapExac
   const std::set<Index> dropped = {1, 7, 8, 13};
   JoinOptions options;
   options.block_columns = GetParam();
+  options.max_iterations = 1;  // compared with the one-shot textbook join
   MapJoin at_once(m1, m2, options, tentative);
   at_once.finish();
   EXPECT_EQ(at_once.report().pairings, 4);
@@ -184,6 +195,7 @@ TEST_P(MapJoiningTentativeTest, DropsUnmatchedTentativeFeaturesOfBothMapsExactly
   const std::vector<Index> second_tentative = {7, 1, 10, 3, 5};
   JoinOptions options;
   options.block_columns = GetParam();
+  options.max_iterations = 1;  // compared with the one-shot textbook join
   MapJoin at_once(m1, m2, options, first_tentative, second_tentative);
   at_once.finish();
   EXPECT_EQ(at_once.report().pairings, 5);
@@ -284,6 +296,268 @@ TEST(MapJoining, ResumedInSlicesGivesBitwiseTheSameResult) {
   const auto merged = sliced.merged_ids();
   EXPECT_EQ(merged.size(), 6u);
   for (const auto& [from, to] : merged) EXPECT_EQ(from, to);  // known ids merge equal ids
+}
+
+// ---------------------------------------------------------------------------------------
+// The iterated join against an independent dense oracle: the constrained MAP of the stacked
+// prior x = [m1.x; m2.x] ~ N(x0, blkdiag(P1, P2)) under f_i = R1 ⊕ f'_j, by the iterated EKF
+// on the whole stacked vector with central-difference Jacobians, mapped into B1.
+
+// g: identity on m1, R1 ⊕ · on m2's robot and features (written out, not the library's ⊕).
+Eigen::VectorXd oracle_to_base_one(const Eigen::VectorXd& x, Index d1) {
+  const double c = std::cos(x(2)), s = std::sin(x(2));
+  Eigen::VectorXd y = x;
+  for (Index a = d1; a + 1 < x.size(); a += (a == d1 ? 3 : 2)) {
+    y(a) = x(0) + c * x(a) - s * x(a + 1);
+    y(a + 1) = x(1) + s * x(a) + c * x(a + 1);
+  }
+  y(d1 + 2) = x(2) + x(d1 + 2);
+  return y;
+}
+
+Eigen::VectorXd oracle_constraints(const Eigen::VectorXd& x, Index d1,
+                                   const std::vector<std::pair<Index, Index>>& pairs) {
+  const Eigen::VectorXd y = oracle_to_base_one(x, d1);
+  Eigen::VectorXd c(2 * static_cast<Index>(pairs.size()));
+  for (std::size_t k = 0; k < pairs.size(); ++k) {
+    c.segment<2>(2 * static_cast<Index>(k)) =
+        y.segment<2>(3 + 2 * pairs[k].first) - y.segment<2>(d1 + 3 + 2 * pairs[k].second);
+  }
+  return c;
+}
+
+struct OracleJoin {
+  GaussianMap map;
+  double max_constraint = 0.0;  // |c(x*)| at the oracle's solution
+};
+
+OracleJoin oracle_iterated_join(const GaussianMap& m1, const GaussianMap& m2,
+                                const std::vector<std::pair<Index, Index>>& pairs) {
+  using testing::numeric_jacobian;
+  const Index d1 = m1.dim(), d2 = m2.dim(), D = d1 + d2;
+  Eigen::VectorXd x0(D);
+  x0 << m1.x(), m2.x();
+  Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(D, D);
+  P0.topLeftCorner(d1, d1) = m1.P();
+  P0.bottomRightCorner(d2, d2) = m2.P();
+  const auto c = [&](const Eigen::VectorXd& x) { return oracle_constraints(x, d1, pairs); };
+  const auto g = [&](const Eigen::VectorXd& x) { return oracle_to_base_one(x, d1); };
+  Eigen::VectorXd x = x0;
+  for (int it = 0; it < 100; ++it) {
+    const Eigen::MatrixXd H = numeric_jacobian(c, x);
+    const Eigen::MatrixXd S = H * P0 * H.transpose();
+    const Eigen::VectorXd next =
+        x0 + P0 * H.transpose() * S.ldlt().solve(-c(x) - H * (x0 - x));
+    const double step = (next - x).cwiseAbs().maxCoeff();
+    x = next;
+    if (step < 1e-13) break;
+  }
+  const Eigen::MatrixXd H = numeric_jacobian(c, x);
+  const Eigen::MatrixXd PHt = P0 * H.transpose();
+  const Eigen::MatrixXd P = P0 - PHt * (H * PHt).ldlt().solve(PHt.transpose());
+  const Eigen::MatrixXd G = numeric_jacobian(g, x);
+  const Eigen::VectorXd y = g(x);
+  const Eigen::MatrixXd Py = G * P * G.transpose();
+
+  // [R2'; F1; F2' unmatched], as the join orders its result.
+  std::set<Index> matched;
+  for (const auto& p : pairs) matched.insert(p.second);
+  std::vector<Index> order = {d1, d1 + 1, d1 + 2};
+  std::vector<std::int64_t> ids;
+  for (Index i = 0; i < m1.num_features(); ++i) {
+    order.push_back(3 + 2 * i);
+    order.push_back(4 + 2 * i);
+    ids.push_back(m1.ids()[i]);
+  }
+  for (Index j = 0; j < m2.num_features(); ++j) {
+    if (matched.count(j)) continue;
+    order.push_back(d1 + 3 + 2 * j);
+    order.push_back(d1 + 4 + 2 * j);
+    ids.push_back(m2.ids()[j]);
+  }
+  OracleJoin out;
+  out.map.resize(static_cast<Index>(order.size()));
+  for (std::size_t a = 0; a < order.size(); ++a) {
+    out.map.x()(a) = y(order[a]);
+    for (std::size_t b = 0; b < order.size(); ++b) out.map.P()(a, b) = Py(order[a], order[b]);
+  }
+  out.map.x()(2) = wrap_angle(out.map.x()(2));
+  out.map.ids() = ids;
+  out.max_constraint = c(x).cwiseAbs().maxCoeff();
+  return out;
+}
+
+// Two maps of the same landmarks where the linearisation matters: R1's heading is uncertain
+// (σθ 0.3 rad) and wrong by about that much, and the shared landmarks lie 30-60 m away.
+std::pair<GaussianMap, GaussianMap> nonlinear_maps(std::uint64_t seed, int shared) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal;
+  std::uniform_real_distribution<double> uniform(-1, 1);
+  const double kPi = 3.14159265358979323846;
+  const Vec3 true_first_robot(5 * uniform(rng), 5 * uniform(rng), kPi * uniform(rng));
+  std::vector<Vec2> landmarks;
+  for (int k = 0; k < shared + 2; ++k) {
+    const double range = 45 + 15 * uniform(rng), bearing = kPi * uniform(rng);
+    landmarks.push_back(true_first_robot.head<2>() +
+                        range * Vec2(std::cos(bearing), std::sin(bearing)));
+  }
+  const auto random_spd = [&](Index d, const Eigen::VectorXd& variances) {
+    Eigen::MatrixXd A(d, d);
+    for (Index i = 0; i < d; ++i)
+      for (Index j = 0; j < d; ++j) A(i, j) = 0.05 * normal(rng);
+    Eigen::MatrixXd P = A * A.transpose();
+    P.diagonal() += variances;
+    return P;
+  };
+  // m1: the robot R1 (heading off by ~σθ) and every landmark but the last; ids 0, 1, ...
+  GaussianMap m1;
+  for (int k = 0; k < shared + 1; ++k) {
+    m1.append_feature(landmarks[k] + 0.3 * Vec2(normal(rng), normal(rng)), k);
+  }
+  m1.x().head<3>() = true_first_robot + Vec3(normal(rng), normal(rng), 0.3 * normal(rng));
+  Eigen::VectorXd variances = Eigen::VectorXd::Constant(m1.dim(), 0.1);
+  variances.head<3>() << 1.0, 1.0, 0.09;
+  m1.P() = random_spd(m1.dim(), variances);
+  // m2 (base R1): the shared landmarks (ids of m1's) and the last one, seen from R1.
+  GaussianMap m2;
+  const double c = std::cos(true_first_robot.z()), s = std::sin(true_first_robot.z());
+  const auto local = [&](const Vec2& p) {
+    const Vec2 d = p - true_first_robot.head<2>();
+    return Vec2(c * d.x() + s * d.y(), -s * d.x() + c * d.y());
+  };
+  for (int k = 0; k < shared; ++k) {
+    m2.append_feature(local(landmarks[k]) + 0.1 * Vec2(normal(rng), normal(rng)), k);
+  }
+  m2.append_feature(local(landmarks[shared + 1]), 1000);
+  m2.x().head<3>() = Vec3(20 * uniform(rng), 20 * uniform(rng), uniform(rng));
+  m2.P() = random_spd(m2.dim(), Eigen::VectorXd::Constant(m2.dim(), 0.02));
+  return {m1, m2};
+}
+
+struct IteratedCase {
+  std::uint64_t seed;
+  int shared;
+  Index block_columns;
+};
+
+class IteratedJoinTest : public ::testing::TestWithParam<IteratedCase> {};
+
+TEST_P(IteratedJoinTest, EqualsTheDenseConstrainedMapAndSatisfiesTheConstraints) {
+  const IteratedCase c = GetParam();
+  const auto [m1, m2] = nonlinear_maps(c.seed, c.shared);
+  const auto pairs = associate_by_id(m1, m2);
+  ASSERT_EQ(static_cast<int>(pairs.size()), c.shared);
+  const OracleJoin oracle = oracle_iterated_join(m1, m2, pairs);
+  ASSERT_LT(oracle.max_constraint, 1e-9);
+
+  JoinOptions options;
+  options.block_columns = c.block_columns;
+  options.max_iterations = 50;
+  JoinReport report;
+  const GaussianMap joined = join_maps(m1, m2, options, &report);
+  EXPECT_GT(report.iterations, 2);
+  EXPECT_LT(report.iterations, 20);
+  expect_maps_equal(joined, oracle.map, 1e-8);
+  EXPECT_LT(std::abs(wrap_angle(joined.x()(2) - oracle.map.x()(2))), 1e-8);
+
+  // The matched features of m1 sit exactly where R1* ⊕ f'_j* puts them (the oracle's
+  // constraint holds at 1e-9); the one-shot join leaves them millimetres to metres away in these cases.
+  options.max_iterations = 1;
+  const GaussianMap one_shot = join_maps(m1, m2, options, &report);
+  EXPECT_EQ(report.iterations, 1);
+  expect_maps_equal(one_shot, dense_join(m1, m2, pairs), 1e-9);
+  double one_shot_error = 0.0;
+  for (const auto& [i, j] : pairs) {
+    const Index row = 3 + 2 * i;
+    EXPECT_LT((joined.x().segment<2>(row) - oracle.map.x().segment<2>(row)).norm(), 1e-8);
+    one_shot_error = std::max(
+        one_shot_error, (one_shot.x().segment<2>(row) - oracle.map.x().segment<2>(row)).norm());
+  }
+  EXPECT_GT(one_shot_error, 1e-3);
+}
+
+INSTANTIATE_TEST_SUITE_P(Cases, IteratedJoinTest,
+                         ::testing::Values(IteratedCase{1, 2, 64}, IteratedCase{2, 3, 4},
+                                           IteratedCase{3, 4, 2}, IteratedCase{4, 4, 64},
+                                           IteratedCase{5, 3, 6}, IteratedCase{6, 2, 2}));
+
+TEST(IteratedJoin, ResumedInSlicesGivesBitwiseTheSameResult) {
+  const auto [m1, m2] = nonlinear_maps(11, 4);
+  const auto first = std::make_shared<const GaussianMap>(m1);
+  const auto second = std::make_shared<const GaussianMap>(m2);
+  JoinOptions options;
+  options.block_columns = 2;
+  MapJoin at_once(first, second, options, {m1.num_features() - 1});
+  at_once.finish();
+  EXPECT_GT(at_once.report().iterations, 2);
+  MapJoin sliced(first, second, options, {m1.num_features() - 1});
+  while (!sliced.done()) sliced.advance(3);
+  EXPECT_EQ(sliced.report().work_units, at_once.report().work_units);
+  EXPECT_EQ(sliced.report().iterations, at_once.report().iterations);
+  const GaussianMap a = at_once.take_result(), b = sliced.take_result();
+  EXPECT_EQ(a.ids(), b.ids());
+  EXPECT_TRUE((a.x().array() == b.x().array()).all());
+  EXPECT_TRUE((a.P().array() == b.P().array()).all());
+}
+
+TEST(IteratedJoin, FewerIterationsThanNeededStopEarly) {
+  const auto [m1, m2] = nonlinear_maps(3, 4);
+  JoinOptions options;
+  options.max_iterations = 2;
+  JoinReport report;
+  const GaussianMap two = join_maps(m1, m2, options, &report);
+  EXPECT_EQ(report.iterations, 2);
+  options.max_iterations = 1;
+  const GaussianMap one = join_maps(m1, m2, options);
+  const OracleJoin oracle = oracle_iterated_join(m1, m2, associate_by_id(m1, m2));
+  // Each Gauss–Newton step brings the mean closer to the constrained MAP.
+  const double error_one = (one.x() - oracle.map.x()).tail(one.dim() - 3).cwiseAbs().maxCoeff();
+  const double error_two = (two.x() - oracle.map.x()).tail(two.dim() - 3).cwiseAbs().maxCoeff();
+  EXPECT_LT(error_two, error_one);
+}
+
+TEST(IteratedJoin, RejectsANonPositiveIterationCount) {
+  const auto [m1, m2] = nonlinear_maps(1, 2);
+  JoinOptions options;
+  options.max_iterations = 0;
+  EXPECT_THROW(join_maps(m1, m2, options), InvalidArgument);
+}
+
+// At a linearisation point x* other than the prior means, the frame's blocks are those of
+// G* P0 G*' and its moved means are g(x*) + G* (x0 - x*), G* by central differences.
+TEST(JoinFrame, LinearisedElsewhereGivesTheLinearisedMeansAndCovariance) {
+  std::mt19937_64 rng(78);
+  const GaussianMap m1 = random_map(rng, {0, 1, 2});
+  const GaussianMap m2 = random_map(rng, {10, 11, 12});
+  const Index d1 = m1.dim(), d2 = m2.dim(), D = d1 + d2;
+  const Vec3 robot_at = m1.robot() + Vec3(0.7, -0.4, 0.3);
+  Eigen::VectorXd second_at = m2.x();
+  for (Index a = 0; a < d2; ++a) second_at(a) += 0.5 * std::sin(1.0 + a);
+  const JoinFrame frame(m1, m2, robot_at, second_at);
+
+  Eigen::VectorXd x0(D), x_at(D);
+  x0 << m1.x(), m2.x();
+  x_at << m1.x(), second_at;
+  x_at.head<3>() = robot_at;
+  const auto g = [&](const Eigen::VectorXd& x) { return oracle_to_base_one(x, d1); };
+  const Eigen::MatrixXd G = testing::numeric_jacobian(g, x_at);
+  const Eigen::VectorXd y = g(x_at) + G * (x0 - x_at);
+  Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(D, D);
+  P0.topLeftCorner(d1, d1) = m1.P();
+  P0.bottomRightCorner(d2, d2) = m2.P();
+  const Eigen::MatrixXd P = G * P0 * G.transpose();
+  const Vec3 robot = frame.moved_second_robot();
+  EXPECT_LT((robot.head<2>() - y.segment<2>(d1)).norm(), 1e-8);
+  EXPECT_LT(std::abs(wrap_angle(robot.z() - y(d1 + 2))), 1e-8);
+  for (Index j = 0; j < 3; ++j) {
+    const Index row2 = d1 + 3 + 2 * j;
+    EXPECT_LT((frame.moved_second_feature(j) - y.segment<2>(row2)).norm(), 1e-8);
+    for (Index i = 0; i < 3; ++i) {
+      EXPECT_LT((frame.first_second(i, j) - P.block<2, 2>(3 + 2 * i, row2)).norm(), 1e-7);
+      EXPECT_LT((frame.second_second(i, j) - P.block<2, 2>(d1 + 3 + 2 * i, row2)).norm(), 1e-7);
+    }
+  }
+  EXPECT_THROW(JoinFrame(m1, m2, robot_at, second_at.head(d2 - 1)), InvalidArgument);
 }
 
 }  // namespace

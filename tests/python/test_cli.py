@@ -31,9 +31,12 @@ ISAM_FILE = Path(__file__).parent.parent / "data" / "isam_victoria_park.txt.gz"
 
 def test_run_isam_writes_outputs(tmp_path):
     out = run("run", "isam", str(ISAM_FILE), "--max-steps", "300", "--filter", "both", "--output", str(tmp_path),
-              "--local-map-features", "10", "--no-progress")
+              "--local-map-features", "10", "--join-iterations", "3", "--no-progress")
     assert out.returncode == 0, out.stdout + out.stderr
     assert "features in the final map" in out.stdout and str(tmp_path) in out.stdout
+    dc_stats = json.loads((tmp_path / "stats_dc.json").read_text())
+    assert dc_stats["config"]["join_iterations"] == 3
+    assert dc_stats["joins"] and all(j["iterations"] <= 3 for j in dc_stats["joins"])
     for name in ("ekf", "dc"):
         t, poses = io.read_tum(tmp_path / f"trajectory_{name}.tum")
         np.testing.assert_array_equal(t, np.arange(300))

@@ -49,6 +49,26 @@ def test_unknown_options_are_refused_naming_the_field():
         dcslam.DCSlam(dcslam.SlamConfig(join_association="icp"))
     with pytest.raises(ValueError, match="local_map_features"):
         dcslam.DCSlam(dcslam.SlamConfig(local_map_features=0))
+    with pytest.raises(ValueError, match="join_iterations"):
+        dcslam.DCSlam(dcslam.SlamConfig(join_iterations=0))
+
+
+@pytest.mark.parametrize("join_iterations", [1, 3, 10])
+def test_join_events_report_the_linearisation_points_used(join_iterations):
+    sim, cfg = known_run(120)
+    cfg.join_iterations = join_iterations
+    slam = dcslam.DCSlam(cfg)
+    slam.run(sim.steps, ids_field="true_ids")
+    slam.finish_joins()
+    joins = slam.stats.joins
+    assert joins and any(j["pairings"] > 0 for j in joins)
+    for j in joins:
+        if j["pairings"] == 0:
+            assert j["iterations"] == 0
+        elif join_iterations == 1:
+            assert j["iterations"] == 1
+        else:  # the simulator's joins are non-linear: at least one re-linearisation
+            assert 2 <= j["iterations"] <= join_iterations
 
 
 def test_anytime_estimate_does_not_disturb_the_run_and_stats_report_joins():
