@@ -125,6 +125,46 @@ int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel
   return removed;
 }
 
+// The completion tested each pairing against the seed only. Here the pairings are taken again
+// in the order the try accepted them (the seed, then by conditional distance), and each must
+// pass the individual gate conditioned on all the pairings kept before it, as on JCBB's
+// path: nu_a - C_aK S_K^-1 nu_K with C_aa - C_aK S_K^-1 C_Ka. A wrong pairing that the
+// seed alone cannot refute is refuted by its neighbours. O(k^3) for k pairings, with the
+// factor of S_K grown a block at a time. Returns the number of pairings removed.
+int accept_sequentially(const std::vector<Pairing>& order, int seed_size,
+                        std::vector<int>& feature_of, const PairingModel& model, double gate) {
+  const auto k = static_cast<Eigen::Index>(order.size());
+  Eigen::MatrixXd lower = Eigen::MatrixXd::Zero(2 * k, 2 * k);  // factor of S_K, grown
+  Eigen::VectorXd whitened(2 * k);
+  std::vector<Pairing> kept;
+  Eigen::MatrixXd cross(2 * k, 2);
+  int removed = 0;
+  for (Eigen::Index a = 0; a < k; ++a) {
+    const Pairing& pairing = order[static_cast<std::size_t>(a)];
+    const auto m = static_cast<Eigen::Index>(kept.size());
+    for (Eigen::Index c = 0; c < m; ++c) {
+      cross.middleRows<2>(2 * c) = model.covariance(kept[static_cast<std::size_t>(c)], pairing);
+    }
+    auto cross_kept = cross.topRows(2 * m);
+    lower.topLeftCorner(2 * m, 2 * m).triangularView<Eigen::Lower>().solveInPlace(cross_kept);
+    const Vec2 innovation = model.innovation(pairing) - cross_kept.transpose() * whitened.head(2 * m);
+    const Mat2 covariance = model.covariance(pairing, pairing) - cross_kept.transpose() * cross_kept;
+    const Eigen::LLT<Mat2> factor(covariance);
+    const bool seed = a < seed_size;
+    if (factor.info() != Eigen::Success ||
+        (!seed && factor.matrixL().solve(innovation).squaredNorm() > gate)) {
+      feature_of[pairing.measurement] = kStar;
+      ++removed;
+      continue;
+    }
+    lower.block(2 * m, 0, 2, 2 * m) = cross_kept.transpose();
+    lower.block<2, 2>(2 * m, 2 * m) = factor.matrixL();
+    whitened.segment<2>(2 * m) = factor.matrixL().solve(innovation);
+    kept.push_back(pairing);
+  }
+  return removed;
+}
+
 RjcResult rjc(const CandidateLists& candidates, const PairingModel& model,
               const RjcOptions& options) {
   check_options(options);
@@ -170,6 +210,7 @@ RjcResult rjc(const CandidateLists& candidates, const PairingModel& model,
 
   int best_pairings = 0;
   double best_score = std::numeric_limits<double>::infinity();
+  std::vector<Pairing> order, best_order;  // pairings in the order the try accepted them
   double p_good = options.p_good;
   double tries_wanted = tries_needed(p_good, b, options.p_fail);
   while (result.tries < tries_wanted && result.tries < options.max_tries) {
@@ -227,11 +268,13 @@ RjcResult rjc(const CandidateLists& candidates, const PairingModel& model,
     std::sort(conditional.begin(), conditional.end());
     int pairings = b;
     double score = seed.joint_distance_sq;
+    order = hypothesis;
     for (const auto& [distance_sq, measurement, feature] : conditional) {
       if (feature_of[measurement] != kStar) continue;
       if (std::find(used_features.begin(), used_features.end(), feature) != used_features.end()) {
         continue;
       }
+      order.push_back(Pairing{measurement, feature});
       feature_of[measurement] = feature;
       used_features.push_back(feature);
       ++pairings;
@@ -242,6 +285,7 @@ RjcResult rjc(const CandidateLists& candidates, const PairingModel& model,
       best_pairings = pairings;
       best_score = score;
       result.feature_of = feature_of;
+      best_order = order;
     }
     p_good = std::max(p_good, static_cast<double>(best_pairings) / result.overlap_size);
     tries_wanted = tries_needed(p_good, b, options.p_fail);
@@ -251,8 +295,9 @@ RjcResult rjc(const CandidateLists& candidates, const PairingModel& model,
   if (best_pairings == 0) {
     result.joint_distance_sq = 0.0;
   } else if (options.verify) {
-    result.dropped = enforce_joint_compatibility(result.feature_of, model, options.confidence,
-                                                 &result.joint_distance_sq);
+    result.dropped = accept_sequentially(best_order, b, result.feature_of, model, gate);
+    result.dropped += enforce_joint_compatibility(result.feature_of, model, options.confidence,
+                                                  &result.joint_distance_sq);
   }
   result.pairings = best_pairings - result.dropped;
   return result;

@@ -47,11 +47,18 @@ struct RjcResult {
 // (9 tries at the defaults).
 //
 // The conditional gate tests each pairing against H only, not against the other added
-// pairings, so with verify on the final hypothesis is made jointly compatible by
-// enforce_joint_compatibility(). That costs O(k^3) for k pairings, no more than the O(n^2 k)
-// join update that consumes them.
+// pairings, so with verify on the best hypothesis is re-tested by accept_sequentially() (each
+// pairing against all those kept before it, in the order the try accepted them) and then made
+// jointly compatible by enforce_joint_compatibility(). That costs O(k^3) for k pairings, no
+// more than the O(n^2 k) join update that consumes them.
 RjcResult rjc(const CandidateLists& candidates, const PairingModel& model,
               const RjcOptions& options = RjcOptions());
+
+// Re-tests a hypothesis given as pairings in order: the first seed_size are kept, every later
+// one must pass the individual gate (D^2 <= gate) conditioned on all the pairings kept before
+// it; the others are set to kStar in feature_of. Returns the number removed. O(k^3).
+int accept_sequentially(const std::vector<Pairing>& order, int seed_size,
+                        std::vector<int>& feature_of, const PairingModel& model, double gate);
 
 // Removes pairings from feature_of until D^2 <= chi2_quantile(2k, confidence): each time the
 // pairing whose removal lowers D^2 most (its distance conditioned on all the others). One

@@ -225,6 +225,44 @@ TEST(Rjc, VerificationDropsTheInconsistentPairing) {
   EXPECT_NEAR(distance_sq, joint_distance_sq(problem.truth, problem.model), 1e-8);
 }
 
+// Each pairing after the seed is kept only if compatible given every pairing kept before it:
+// checked against the chain rule, D^2(K + a) - D^2(K) being a's conditional distance given K.
+TEST(Rjc, SequentialAcceptanceKeepsThePairingsCompatibleWithAllEarlierOnes) {
+  const JoinProblem problem = grid_join(7, 0, 6, 3, 9);
+  std::vector<Pairing> order;
+  for (std::size_t j = 0; j < problem.truth.size(); ++j) {
+    if (problem.truth[j] != kStar) order.push_back(Pairing{static_cast<int>(j), problem.truth[j]});
+  }
+  // Two wrong pairings among the true ones: a spurious feature of the second map with a grid
+  // point nearby, and a true feature with its +y neighbour's partner instead of its own.
+  const int spurious = static_cast<int>(problem.truth.size()) - 1;
+  order.insert(order.begin() + 6, Pairing{spurious, 5 * 6 + 0});
+  const Pairing shifted{order[9].measurement, order[9].feature + 1};
+  order[9] = shifted;
+  std::vector<int> feature_of(problem.truth.size(), kStar);
+  for (const Pairing& pairing : order) feature_of[pairing.measurement] = pairing.feature;
+
+  const double gate = chi2_quantile(2, 0.99);
+  std::vector<int> expected(problem.truth.size(), kStar);
+  int expected_removed = 0;
+  for (std::size_t a = 0; a < order.size(); ++a) {
+    std::vector<int> with = expected;
+    with[order[a].measurement] = order[a].feature;
+    const double conditional = joint_distance_sq(with, problem.model) - joint_distance_sq(expected, problem.model);
+    if (a < 4 || conditional <= gate) {
+      expected = with;
+    } else {
+      ++expected_removed;
+    }
+  }
+  EXPECT_EQ(accept_sequentially(order, 4, feature_of, problem.model, gate), expected_removed);
+  EXPECT_EQ(feature_of, expected);
+  // Both wrong pairings go, every true one stays.
+  EXPECT_EQ(expected_removed, 2);
+  EXPECT_EQ(feature_of[spurious], kStar);
+  EXPECT_EQ(feature_of[shifted.measurement], kStar);
+}
+
 TEST(Rjc, RejectsBadOptions) {
   const JoinProblem problem = grid_join(8, 0, 6, 3, 9);
   RjcOptions options;
