@@ -17,6 +17,8 @@ by the most likely assignment under the simulator's noise and clutter model (Hun
 algorithm); then its pairings are declined in order of their margin (cost of the best
 assignment without the pairing minus the best) to trace precision against recall.
 
+Needs scipy (the "test" extra).
+
 Usage: python tools/association_breakdown.py breakdown|oracle TRAJECTORY [--steps 600]
        [--clutter 0.1] [--seed 0] [--gate 0.99] [--unexplained-density 0]
 """
