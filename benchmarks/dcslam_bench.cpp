@@ -50,6 +50,9 @@ Options of sim and scaling (defaults in brackets):
   --association known|nn|jcbb  (local maps; joins use known|rjc)   [known]
                        with nn|jcbb, sim also scores the pairings against the true ids
   --clutter F          fraction of spurious measurements            [0]
+  --odometry-noise-scale F  odometry sigmas times F                [1]
+  --gate C             gate_confidence of the compatibility tests   [0.99]
+  --unexplained-density D   SlamConfig.unexplained_density (jcbb)  [0]
 
 Options of sim, scaling, vp and isam:
   --filter ekf|dc|both                                              [both]
@@ -302,9 +305,23 @@ void apply_run_options(const Args& args, SlamConfig& config) {
   config.validate();
 }
 
+double real_number(const Args& args, const std::string& key, double fallback) {
+  const std::string text = get(args, key, "");
+  if (text.empty()) return fallback;
+  try {
+    std::size_t used = 0;
+    const double value = std::stod(text, &used);
+    if (used == text.size()) return value;
+  } catch (const std::exception&) {
+  }
+  throw InvalidArgument("dcslam_bench: --" + key + " expects a number, got '" + text + "'");
+}
+
 SlamConfig simulation_config(const Args& args) {
   SlamConfig config;
   config.association = parse_association(get(args, "association", "known"), "--association");
+  config.gate_confidence = real_number(args, "gate", config.gate_confidence);
+  config.unexplained_density = real_number(args, "unexplained-density", config.unexplained_density);
   config.join_association =
       config.association == Association::Known ? JoinAssociation::Known : JoinAssociation::Rjc;
   apply_run_options(args, config);
@@ -492,7 +509,8 @@ Simulation simulate_from(const Args& args, int steps) {
   sim.trajectory = parse_trajectory(get(args, "trajectory", "snail"), "--trajectory");
   sim.steps = steps;
   sim.seed = static_cast<std::uint64_t>(number(args, "seed", 0));
-  sim.clutter = std::stod(get(args, "clutter", "0"));
+  sim.clutter = real_number(args, "clutter", 0.0);
+  sim.odometry_sigma *= real_number(args, "odometry-noise-scale", 1.0);
   return simulate(sim);
 }
 
@@ -508,8 +526,12 @@ std::vector<RunResult> run_simulation(const Args& args, int steps) {
 
 int command_sim(const Args& args) {
   const int steps = static_cast<int>(number(args, "steps", 500));
-  std::printf("sim: %s, %d steps, association %s, clutter %s\n", get(args, "trajectory", "snail").c_str(),
-              steps, get(args, "association", "known").c_str(), get(args, "clutter", "0").c_str());
+  const SlamConfig config = simulation_config(args);
+  std::printf("sim: %s, %d steps, association %s, clutter %s, odometry noise x%s, gate %g, "
+              "unexplained density %g\n",
+              get(args, "trajectory", "snail").c_str(), steps, get(args, "association", "known").c_str(),
+              get(args, "clutter", "0").c_str(), get(args, "odometry-noise-scale", "1").c_str(),
+              config.gate_confidence, config.unexplained_density);
   return report("sim", args, steps, run_simulation(args, steps));
 }
 

@@ -29,6 +29,7 @@ void define_config(py::module_& m) {
             c.association = parse_association(v, "SlamConfig.association");
           })
       .def_readwrite("gate_confidence", &SlamConfig::gate_confidence)
+      .def_readwrite("unexplained_density", &SlamConfig::unexplained_density)
       .def_readwrite("jcbb_max_nodes", &SlamConfig::jcbb_max_nodes)
       .def_readwrite("min_sightings", &SlamConfig::min_sightings)
       .def_readwrite("tentative_window", &SlamConfig::tentative_window)

@@ -1,6 +1,7 @@
 #include "dcslam/config.hpp"
 
 #include <cmath>
+#include <cmath>
 #include <string>
 
 #include "dcslam/errors.hpp"
@@ -51,6 +52,8 @@ void SlamConfig::validate() const {
   require(sensor_offset.allFinite(), "sensor_offset: must be finite");
   require(gate_confidence > 0.0 && gate_confidence < 1.0,
           "gate_confidence: must lie in (0, 1), got " + std::to_string(gate_confidence));
+  require(std::isfinite(unexplained_density) && unexplained_density >= 0.0,
+          "unexplained_density: must be finite and >= 0, got " + std::to_string(unexplained_density));
   require(jcbb_max_nodes >= 1,
           "jcbb_max_nodes: must be >= 1, got " + std::to_string(jcbb_max_nodes));
   require(min_sightings >= 1, "min_sightings: must be >= 1, got " + std::to_string(min_sightings));

@@ -193,6 +193,23 @@ void EkfAssociation::candidates(const GaussianMap& map, const Vec2& z, const Mat
   std::sort(out.begin(), out.end());  // hash order is arbitrary; keep runs reproducible
 }
 
+void EkfAssociation::fill_likelihood(const MeasurementsRef& z, const std::vector<Mat2>& R) {
+  const auto m = static_cast<std::size_t>(z.rows());
+  likelihood_.log_unexplained_density.resize(m);
+  likelihood_.log_noise_det.resize(m);
+  const double log_density = std::log(config_.unexplained_density);
+  for (std::size_t i = 0; i < m; ++i) {
+    // A density uniform in the plane, seen in measurement space: times |det dg/dz|, the
+    // range for (r, beta) and 1 for Cartesian points.
+    const double jacobian = config_.observation == ObservationModel::RangeBearing
+                                ? std::abs(z(static_cast<Index>(i), 0))
+                                : 1.0;
+    likelihood_.log_unexplained_density[i] = log_density + std::log(jacobian);
+    const Mat2& noise = R.size() == 1 ? R[0] : R[i];
+    likelihood_.log_noise_det[i] = std::log((0.5 * (noise + noise.transpose())).determinant());
+  }
+}
+
 void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
                                const std::vector<Mat2>& R, std::vector<Index>& pairing,
                                std::map<std::string, double>& counters) {
@@ -229,7 +246,13 @@ void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
 
   std::vector<int> feature_of;
   if (config_.association == Association::Jcbb) {
-    JcbbResult result = jcbb_.solve(candidates_, model_);
+    JcbbResult result;
+    if (config_.unexplained_density > 0.0) {
+      fill_likelihood(z, R);
+      result = jcbb_.solve(candidates_, model_, likelihood_);
+    } else {
+      result = jcbb_.solve(candidates_, model_);
+    }
     counters["jcbb_nodes"] += static_cast<double>(result.nodes_expanded);
     counters["jcbb_bound_hits"] += result.bound_hit ? 1.0 : 0.0;
     feature_of = std::move(result.feature_of);

@@ -14,6 +14,7 @@ namespace dcslam {
 namespace {
 
 constexpr double kInfinity = std::numeric_limits<double>::infinity();
+constexpr double kLogInvTwoPi = -1.8378770664093454836;  // ln(1 / (2 pi)), 2-dof normal
 
 // Lower Cholesky factor of a 2x2 matrix; false unless it is (numerically) positive definite.
 bool cholesky2(const Mat2& m, Mat2& lower) {
@@ -53,8 +54,23 @@ Jcbb::Jcbb(const JcbbOptions& options) : options_(options), gate_(options.confid
 }
 
 JcbbResult Jcbb::solve(const CandidateLists& candidates, const PairingModel& model) {
+  return run(candidates, model, nullptr);
+}
+
+JcbbResult Jcbb::solve(const CandidateLists& candidates, const PairingModel& model,
+                       const JcbbLikelihood& likelihood) {
+  const std::size_t m = candidates.size();
+  if (likelihood.log_unexplained_density.size() != m || likelihood.log_noise_det.size() != m) {
+    throw InvalidArgument("JcbbLikelihood: one log density and one log det per measurement");
+  }
+  return run(candidates, model, &likelihood);
+}
+
+JcbbResult Jcbb::run(const CandidateLists& candidates, const PairingModel& model,
+                     const JcbbLikelihood* likelihood) {
   check_candidates(candidates);
   model_ = &model;
+  likelihood_ = likelihood;
   num_measurements_ = static_cast<int>(candidates.size());
   const int m = num_measurements_;
 
@@ -72,9 +88,20 @@ JcbbResult Jcbb::solve(const CandidateLists& candidates, const PairingModel& mod
     ordered.clear();
     for (const auto& [distance_sq, feature] : ranked_) ordered.push_back(feature);
   }
-  pairable_from_.assign(static_cast<std::size_t>(m) + 1, 0);
+  int pairable = 0;
+  score_bound_from_.assign(static_cast<std::size_t>(m) + 1, 0.0);
   for (int i = m - 1; i >= 0; --i) {
-    pairable_from_[i] = pairable_from_[i + 1] + (candidates[i].empty() ? 0 : 1);
+    double bound = 0.0;
+    if (!candidates[i].empty()) {
+      ++pairable;
+      // A measurement can always stay unpaired (gain 0) when the star is allowed; without
+      // the star its (possibly negative) gain must be counted, and the bound still holds.
+      bound = likelihood ? kLogInvTwoPi - 0.5 * likelihood->log_noise_det[i] -
+                               likelihood->log_unexplained_density[i]
+                         : 1.0;
+      if (options_.allow_star) bound = std::max(bound, 0.0);
+    }
+    score_bound_from_[i] = score_bound_from_[i + 1] + bound;
   }
 
   if (factor_.rows() < 2 * m) {
@@ -84,13 +111,13 @@ JcbbResult Jcbb::solve(const CandidateLists& candidates, const PairingModel& mod
   }
   hypothesis_.resize(static_cast<std::size_t>(m));
   best_.clear();
-  best_pairings_ = -1;
+  best_score_ = -kInfinity;
   best_distance_sq_ = 0.0;
   nodes_ = 0;
   bound_hit_ = false;
 
-  const bool feasible = options_.allow_star || pairable_from_[0] == m;
-  if (feasible) search(0, 0, 0.0);
+  const bool feasible = options_.allow_star || pairable == m;
+  if (feasible) search(0, 0, 0.0, 0.0);
 
   JcbbResult result;
   result.feature_of.assign(static_cast<std::size_t>(m), kStar);
@@ -100,12 +127,13 @@ JcbbResult Jcbb::solve(const CandidateLists& candidates, const PairingModel& mod
   result.nodes_expanded = nodes_;
   result.bound_hit = bound_hit_;
   model_ = nullptr;
+  likelihood_ = nullptr;
   return result;
 }
 
-bool Jcbb::can_improve(int max_pairings, double distance_sq_lower_bound) const {
-  return max_pairings > best_pairings_ ||
-         (max_pairings == best_pairings_ && distance_sq_lower_bound < best_distance_sq_);
+bool Jcbb::can_improve(double score_upper_bound, double distance_sq_lower_bound) const {
+  return score_upper_bound > best_score_ ||
+         (score_upper_bound == best_score_ && distance_sq_lower_bound < best_distance_sq_);
 }
 
 bool Jcbb::feature_in_use(int depth, int feature) const {
@@ -115,13 +143,13 @@ bool Jcbb::feature_in_use(int depth, int feature) const {
   return false;
 }
 
-void Jcbb::record(int depth, double distance_sq) {
+void Jcbb::record(int depth, double distance_sq, double score) {
   best_.assign(hypothesis_.begin(), hypothesis_.begin() + depth);
-  best_pairings_ = depth;
+  best_score_ = score;
   best_distance_sq_ = distance_sq;
 }
 
-void Jcbb::search(int measurement, int depth, double distance_sq) {
+void Jcbb::search(int measurement, int depth, double distance_sq, double score) {
   if (bound_hit_) return;
   if (nodes_ >= options_.max_nodes) {
     bound_hit_ = true;
@@ -131,30 +159,32 @@ void Jcbb::search(int measurement, int depth, double distance_sq) {
   // With the star allowed every node is a complete hypothesis (the rest unpaired), so it is
   // recorded here; that also gives the bounded search a useful answer.
   const bool complete = measurement == num_measurements_;
-  if ((complete || options_.allow_star) && can_improve(depth, distance_sq)) {
-    record(depth, distance_sq);
+  if ((complete || options_.allow_star) && can_improve(score, distance_sq)) {
+    record(depth, distance_sq, score);
   }
   if (complete) return;
 
-  const int pairable_after = pairable_from_[measurement + 1];
+  const double bound_here = score + score_bound_from_[measurement];
+  const double bound_after = score + score_bound_from_[measurement + 1];
   for (int feature : ordered_candidates_[measurement]) {
     // Re-checked per candidate: the best may have improved inside the previous subtree.
-    if (!can_improve(depth + 1 + pairable_after, distance_sq)) break;
+    if (!can_improve(bound_here, distance_sq)) break;
     if (feature_in_use(depth, feature)) continue;
     const Pairing pairing{measurement, feature};
     double extended_distance_sq = distance_sq;
-    if (!extend(depth, pairing, extended_distance_sq)) continue;
-    if (!can_improve(depth + 1 + pairable_after, extended_distance_sq)) continue;
+    double gain = 0.0;
+    if (!extend(depth, pairing, extended_distance_sq, gain)) continue;
+    if (!can_improve(bound_after + gain, extended_distance_sq)) continue;
     hypothesis_[depth] = pairing;
-    search(measurement + 1, depth + 1, extended_distance_sq);
+    search(measurement + 1, depth + 1, extended_distance_sq, score + gain);
     if (bound_hit_) return;
   }
-  if (options_.allow_star && can_improve(depth + pairable_after, distance_sq)) {
-    search(measurement + 1, depth, distance_sq);
+  if (options_.allow_star && can_improve(bound_after, distance_sq)) {
+    search(measurement + 1, depth, distance_sq, score);
   }
 }
 
-bool Jcbb::extend(int depth, const Pairing& pairing, double& distance_sq) {
+bool Jcbb::extend(int depth, const Pairing& pairing, double& distance_sq, double& score_gain) {
   // Appending pairing a to H: with C_Ha = cov(nu_H, nu_a) and X = L^-1 C_Ha, the new factor
   // row is [X', chol(C_aa - X'X)] and the new whitened entry chol(..)^-1 (nu_a - X' w_H).
   const int rows = 2 * depth;
@@ -176,6 +206,14 @@ bool Jcbb::extend(int depth, const Pairing& pairing, double& distance_sq) {
   factor_.block<2, 2>(rows, rows) = block;
   whitened_.segment<2>(rows) = whitened;
   distance_sq = extended;
+  if (likelihood_) {
+    // ln N(nu_a|H; 0, S_a|H) with S_a|H = block block' (the Schur complement).
+    const auto i = static_cast<std::size_t>(pairing.measurement);
+    score_gain = kLogInvTwoPi - std::log(block(0, 0) * block(1, 1)) - 0.5 * whitened.squaredNorm() -
+                 likelihood_->log_unexplained_density[i];
+  } else {
+    score_gain = 1.0;
+  }
   return true;
 }
 

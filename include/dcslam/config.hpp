@@ -24,6 +24,11 @@ struct SlamConfig {
   Vec3 sensor_offset = Vec3::Zero();
   Association association = Association::Jcbb;
   double gate_confidence = 0.99;
+  // "jcbb": expected measurements per scan and per m^2 (in the plane) that no mapped feature
+  // explains, clutter and first sightings together. 0 = JCBB returns the hypothesis with most
+  // pairings; > 0 = the one with the highest likelihood ratio against leaving measurements
+  // unexplained (JcbbLikelihood), which declines pairings less likely than that density.
+  double unexplained_density = 0.0;
   // "jcbb": interpretation-tree nodes per scan before JCBB returns its best hypothesis so far.
   std::int64_t jcbb_max_nodes = 20000;
   // Spurious measurements ("nn"/"jcbb" only; docs/data_association.md): a new feature stays

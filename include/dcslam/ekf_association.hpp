@@ -100,6 +100,9 @@ class EkfAssociation {
   double query_radius(const GaussianMap& map, const Vec2& z, const Mat2& R) const;
   void track_sigma(const GaussianMap& map, Index feature);
   void rebuild_hash(const GaussianMap& map, double cell_size);
+  // JcbbLikelihood of the scan: the unexplained density in measurement space at each z_i and
+  // ln det R_i, the floor of every pairing's conditional innovation covariance.
+  void fill_likelihood(const MeasurementsRef& z, const std::vector<Mat2>& R);
   double slack() const;
 
   SlamConfig config_;
@@ -110,6 +113,7 @@ class EkfAssociation {
   EkfPairingModel model_;
   Jcbb jcbb_;
   CandidateLists candidates_;
+  JcbbLikelihood likelihood_;       // filled per scan when config_.unexplained_density > 0
   std::vector<int> nearby_;
 };
 

@@ -56,6 +56,22 @@ struct JcbbResult {
   bool bound_hit = false;  // max_nodes reached: the result is the best found so far
 };
 
+// The likelihood objective of Jcbb::solve (docs/data_association.md, "Likelihood criterion"):
+// a measurement left unpaired is explained by clutter or by a landmark seen for the first
+// time, with density lambda_i at z_i in the innovation's units. A pairing a of measurement i
+// then gains
+//   gain(a) = ln N(nu_a|H; 0, S_a|H) - ln lambda_i
+//           = -ln(2 pi) - 1/2 ln det S_a|H - 1/2 d^2_a|H - ln lambda_i,
+// conditioned on the pairings H made before it, so that the gains of a hypothesis sum to its
+// log-likelihood ratio ln N(nu_H; 0, S_H) - sum ln lambda_i against "nothing paired".
+// log_noise_det[i] must be a lower bound on ln det S_a|H for every pairing a of measurement i
+// (for an EKF, ln det R_i: the conditional covariance is H P_cond H' + R_i >= R_i); it bounds
+// the gain of measurements not yet visited, which is what lets the search prune.
+struct JcbbLikelihood {
+  std::vector<double> log_unexplained_density;  // ln lambda_i, one per measurement
+  std::vector<double> log_noise_det;            // lower bound on ln det S_a|H, one per measurement
+};
+
 // JCBB over measurements 0..m-1 in order. A hypothesis H assigns each measurement a candidate
 // feature or the star, each feature at most once. H is admissible when it is jointly
 // compatible, D^2(H) <= chi2_quantile(2|H|, confidence), and so is each of its prefixes in
@@ -79,29 +95,44 @@ class Jcbb {
   explicit Jcbb(const JcbbOptions& options = JcbbOptions());
   const JcbbOptions& options() const { return options_; }
   JcbbResult solve(const CandidateLists& candidates, const PairingModel& model);
+  // The same search and admissibility (every prefix jointly compatible), but the hypothesis
+  // returned maximises the sum of its pairings' gains (JcbbLikelihood), ties broken by lowest
+  // D^2. A pairing whose likelihood is below lambda_i lowers the sum, so a hypothesis may
+  // leave out pairings JCBB's "most pairings" criterion would take. Exact (equal to
+  // exhaustive enumeration) unless the node bound is hit.
+  JcbbResult solve(const CandidateLists& candidates, const PairingModel& model,
+                   const JcbbLikelihood& likelihood);
 
  private:
-  void search(int measurement, int depth, double distance_sq);
+  // Both criteria maximise a score summed over the pairings, then minimise D^2: one per
+  // pairing for "most pairings", the gain for the likelihood criterion.
+  JcbbResult run(const CandidateLists& candidates, const PairingModel& model,
+                 const JcbbLikelihood* likelihood);
+  void search(int measurement, int depth, double distance_sq, double score);
   // Tests adding `pairing` to the first `depth` pairings of the current hypothesis; on
-  // success writes its block row of the factor and returns the new D^2 in `distance_sq`.
-  bool extend(int depth, const Pairing& pairing, double& distance_sq);
-  bool can_improve(int max_pairings, double distance_sq_lower_bound) const;
+  // success writes its block row of the factor, returns the new D^2 in `distance_sq` and
+  // the pairing's score in `score_gain`.
+  bool extend(int depth, const Pairing& pairing, double& distance_sq, double& score_gain);
+  bool can_improve(double score_upper_bound, double distance_sq_lower_bound) const;
   bool feature_in_use(int depth, int feature) const;
-  void record(int depth, double distance_sq);
+  void record(int depth, double distance_sq, double score);
 
   JcbbOptions options_;
   ChiSquareGate gate_;
   const PairingModel* model_ = nullptr;
   int num_measurements_ = 0;
   CandidateLists ordered_candidates_;
-  std::vector<int> pairable_from_;  // measurements >= i with at least one candidate
+  const JcbbLikelihood* likelihood_ = nullptr;  // null: "most pairings"
+  // Upper bound on the score that measurements >= i can still add (their count of pairable
+  // measurements for "most pairings").
+  std::vector<double> score_bound_from_;
   std::vector<Pairing> hypothesis_;
   Eigen::MatrixXd factor_;      // lower Cholesky factor of S_H, one 2-row block per pairing
   Eigen::VectorXd whitened_;    // L^-1 nu_H
   Eigen::MatrixXd cross_;       // scratch: L^-1 C_Ha
   std::vector<std::pair<double, int>> ranked_;  // scratch for candidate ordering
   std::vector<Pairing> best_;
-  int best_pairings_ = -1;
+  double best_score_ = 0.0;
   double best_distance_sq_ = 0.0;
   std::int64_t nodes_ = 0;
   bool bound_hit_ = false;

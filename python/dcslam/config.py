@@ -36,6 +36,10 @@ class SlamConfig:
         sensor_offset: sensor pose (x, y, phi) on the robot.
         association: data association inside local maps: ``"known"``, ``"nn"`` or ``"jcbb"``.
         gate_confidence: chi-square confidence of the individual/joint compatibility tests.
+        unexplained_density: ``"jcbb"``: expected measurements per scan and per m^2 that no
+            mapped feature explains (clutter and first sightings). 0 (default): JCBB keeps the
+            hypothesis with most pairings; > 0: the most likely one against leaving
+            measurements unexplained at that density (docs/data_association.md).
         jcbb_max_nodes: ``"jcbb"``: interpretation-tree nodes per scan (>= 1) before JCBB
             returns the best hypothesis found so far (counted in ``stats.counters``
             ``"jcbb_bound_hits"``).
@@ -61,6 +65,7 @@ class SlamConfig:
     sensor_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
     association: str = "jcbb"
     gate_confidence: float = 0.99
+    unexplained_density: float = 0.0
     jcbb_max_nodes: int = 20000
     min_sightings: int = 2
     tentative_window: int = 5

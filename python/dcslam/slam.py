@@ -156,8 +156,10 @@ class EkfSlam(SlamFilter):
     - ``"nn"``: nearest neighbour among individually compatible features (2-dof chi-square
       gate at ``cfg.gate_confidence``);
     - ``"jcbb"``: Joint Compatibility Branch and Bound over the scan (most pairings, then
-      lowest joint Mahalanobis distance), at most ``cfg.jcbb_max_nodes`` tree nodes per scan;
-      ``stats.counters`` has ``"jcbb_nodes"`` and ``"jcbb_bound_hits"``.
+      lowest joint Mahalanobis distance; with ``cfg.unexplained_density > 0`` the highest
+      likelihood ratio against leaving measurements unexplained), at most
+      ``cfg.jcbb_max_nodes`` tree nodes per scan; ``stats.counters`` has ``"jcbb_nodes"``
+      and ``"jcbb_bound_hits"``.
 
     Candidates come from a spatial hash of the feature means queried with a radius that
     provably contains every gate-passing feature, so a step's association is O(m) for a

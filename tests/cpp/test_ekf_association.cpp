@@ -260,6 +260,99 @@ TEST_P(EkfAssociationTest, JcbbEqualsExhaustiveEnumerationOnCrowdedScans) {
   EXPECT_GT(ambiguous_scans, 50);
 }
 
+// Every admissible hypothesis as in brute_force_jcbb, best = highest log-likelihood ratio
+// ln N(nu_H; 0, S_H) - sum_{i in H} log_lambda[i] computed from the whole stacked S_H.
+std::vector<int> brute_force_likelihood(const CandidateLists& candidates, const PairingModel& model,
+                                        double confidence, const std::vector<double>& log_lambda) {
+  const int m = static_cast<int>(candidates.size());
+  std::vector<int> current(static_cast<std::size_t>(m), kStar), best = current;
+  double best_score = 0.0;  // the empty hypothesis
+  std::function<void(int, int)> visit = [&](int i, int pairings) {
+    if (pairings > 0) {
+      std::vector<int> prefix = current;
+      for (int k = i; k < m; ++k) prefix[static_cast<std::size_t>(k)] = kStar;
+      const StackedHypothesis stacked = stack_hypothesis(prefix, model);
+      const Eigen::LDLT<MatrixXd> ldlt(stacked.covariance);
+      const double distance = stacked.innovation.dot(ldlt.solve(stacked.innovation));
+      if (!(distance <= chi2_quantile(2 * pairings, confidence))) return;
+      if (i == m) {
+        double score = -pairings * std::log(2.0 * M_PI) - 0.5 * ldlt.vectorD().array().log().sum() - 0.5 * distance;
+        for (const Pairing& p : stacked.pairings) score -= log_lambda[static_cast<std::size_t>(p.measurement)];
+        if (score > best_score) {
+          best = prefix;
+          best_score = score;
+        }
+      }
+    }
+    if (i == m) return;
+    for (int feature : candidates[static_cast<std::size_t>(i)]) {
+      if (std::find(current.begin(), current.begin() + i, feature) != current.begin() + i) continue;
+      current[static_cast<std::size_t>(i)] = feature;
+      visit(i + 1, pairings + 1);
+    }
+    current[static_cast<std::size_t>(i)] = kStar;
+    visit(i + 1, pairings);
+  };
+  visit(0, 0);
+  return best;
+}
+
+// unexplained_density > 0: the filter's JCBB returns the most likely hypothesis against
+// leaving measurements unexplained, the density seen in measurement space (times the range
+// for range-bearing), as exhaustive enumeration finds it.
+TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowdedScans) {
+  const ObservationModel observation = GetParam();
+  SlamConfig config;
+  config.observation = observation;
+  config.sensor_offset = kOffset;
+  config.association = Association::Jcbb;
+  config.unexplained_density = observation == ObservationModel::RangeBearing ? 2.0 : 0.3;
+  const double gate = chi2_quantile(2, config.gate_confidence);
+  std::mt19937_64 rng(15);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  int declined = 0;  // measurements with candidates that the likelihood leaves unpaired
+  for (int trial = 0; trial < 60; ++trial) {
+    const GaussianMap map = random_map(rng, 7, 1.5, 0.2, 0.05, 0.25);
+    EkfAssociation association(config);
+    for (Index k = 0; k < map.num_features(); ++k) association.feature_added(map, k);
+    const int m = 5;
+    MeasurementMatrix z(m, 2);
+    std::vector<Mat2> R;
+    std::vector<double> log_lambda;
+    for (int i = 0; i < m; ++i) {
+      const int target = static_cast<int>(uniform(rng) * static_cast<double>(map.num_features()));
+      Vec2 zi = observe(observation, kOffset, map.robot(), map.feature(target));
+      zi += observation == ObservationModel::RangeBearing ? Vec2(0.2 * normal(rng), 0.1 * normal(rng))
+                                                          : Vec2(0.3 * normal(rng), 0.3 * normal(rng));
+      z.row(i) = zi.transpose();
+      R.push_back(noise_for(observation) * (0.5 + uniform(rng)));
+      const double jacobian = observation == ObservationModel::RangeBearing ? std::abs(zi(0)) : 1.0;
+      log_lambda.push_back(std::log(config.unexplained_density * jacobian));
+    }
+    std::vector<Index> pairing;
+    std::map<std::string, double> counters;
+    association.associate(map, z, R, pairing, counters);
+
+    CandidateLists candidates(m);
+    for (int i = 0; i < m; ++i) candidates[static_cast<std::size_t>(i)] = gate_passing(map, observation, z, R, i, gate);
+    EkfPairingModel model;
+    model.reset(map, observation, kOffset, z, R);
+    for (int j = 0; j < map.num_features(); ++j) model.prepare(j);
+    const std::vector<int> best = brute_force_likelihood(candidates, model, config.gate_confidence, log_lambda);
+    for (int i = 0; i < m; ++i) {
+      const auto& list = candidates[static_cast<std::size_t>(i)];
+      const Index expected = best[static_cast<std::size_t>(i)] != kStar ? best[static_cast<std::size_t>(i)]
+                             : list.empty()                             ? kNewFeature
+                                                                         : kRejected;
+      EXPECT_EQ(pairing[static_cast<std::size_t>(i)], expected) << "trial " << trial << " measurement " << i;
+      declined += expected == kRejected;
+    }
+    EXPECT_EQ(counters["jcbb_bound_hits"], 0.0);
+  }
+  EXPECT_GT(declined, 10);
+}
+
 INSTANTIATE_TEST_SUITE_P(Models, EkfAssociationTest,
                          ::testing::Values(ObservationModel::RangeBearing, ObservationModel::Point));
 

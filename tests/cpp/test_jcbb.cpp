@@ -5,6 +5,7 @@
 #include <vector>
 
 #include <Eigen/Cholesky>
+#include <Eigen/LU>
 #include <gtest/gtest.h>
 
 #include "dcslam/chi_square.hpp"
@@ -212,6 +213,135 @@ void expect_matches_exhaustive(bool allow_star, std::uint64_t seed) {
 TEST(Jcbb, MatchesExhaustiveSearch) { expect_matches_exhaustive(true, 11); }
 
 TEST(Jcbb, StarFreeVariantMatchesExhaustiveSearch) { expect_matches_exhaustive(false, 12); }
+
+// The likelihood criterion's score of a hypothesis computed from scratch: the log-density of
+// its stacked innovation under N(0, S_H) (LDLT of the whole S_H) minus sum ln lambda_i.
+double direct_log_likelihood_ratio(const std::vector<Pairing>& pairings, const PairingModel& model,
+                                   const JcbbLikelihood& likelihood) {
+  const auto k = static_cast<Eigen::Index>(pairings.size());
+  if (k == 0) return 0.0;
+  Eigen::VectorXd nu(2 * k);
+  Eigen::MatrixXd S(2 * k, 2 * k);
+  double unexplained = 0.0;
+  for (Eigen::Index a = 0; a < k; ++a) {
+    nu.segment<2>(2 * a) = model.innovation(pairings[a]);
+    unexplained += likelihood.log_unexplained_density[static_cast<std::size_t>(pairings[a].measurement)];
+    for (Eigen::Index b = 0; b < k; ++b) {
+      S.block<2, 2>(2 * a, 2 * b) = model.covariance(pairings[a], pairings[b]);
+    }
+  }
+  const Eigen::LDLT<Eigen::MatrixXd> ldlt(S);
+  const double log_det = ldlt.vectorD().array().log().sum();
+  return -static_cast<double>(k) * std::log(2.0 * M_PI) - 0.5 * log_det - 0.5 * nu.dot(ldlt.solve(nu)) -
+         unexplained;
+}
+
+struct LikelihoodBest {
+  double score = -std::numeric_limits<double>::infinity();
+  double distance_sq = 0.0;
+  double runner_up_score = -std::numeric_limits<double>::infinity();
+  std::vector<int> feature_of;
+};
+
+// Every admissible assignment (as enumerate()), ranked by the directly computed score.
+void enumerate_likelihood(const Problem& problem, const JcbbLikelihood& likelihood, double confidence,
+                          bool allow_star, std::size_t measurement, std::vector<Pairing>& hypothesis,
+                          std::vector<int>& feature_of, LikelihoodBest& best) {
+  const CandidateLists& candidates = problem.candidates;
+  if (measurement == candidates.size()) {
+    const double score = direct_log_likelihood_ratio(hypothesis, problem.model, likelihood);
+    if (score > best.score) {
+      best.runner_up_score = best.score;
+      best.score = score;
+      best.distance_sq = hypothesis.empty() ? 0.0 : direct_distance_sq(hypothesis, problem.model);
+      best.feature_of = feature_of;
+    } else {
+      best.runner_up_score = std::max(best.runner_up_score, score);
+    }
+    return;
+  }
+  for (int feature : candidates[measurement]) {
+    const bool used = std::any_of(hypothesis.begin(), hypothesis.end(),
+                                  [&](const Pairing& p) { return p.feature == feature; });
+    if (used) continue;
+    hypothesis.push_back(Pairing{static_cast<int>(measurement), feature});
+    if (direct_distance_sq(hypothesis, problem.model) <=
+        chi2_quantile(2 * static_cast<int>(hypothesis.size()), confidence)) {
+      feature_of[measurement] = feature;
+      enumerate_likelihood(problem, likelihood, confidence, allow_star, measurement + 1, hypothesis,
+                           feature_of, best);
+      feature_of[measurement] = kStar;
+    }
+    hypothesis.pop_back();
+  }
+  if (allow_star) {
+    enumerate_likelihood(problem, likelihood, confidence, allow_star, measurement + 1, hypothesis,
+                         feature_of, best);
+  }
+}
+
+// Densities spread so that the criterion sometimes declines pairings "most pairings" takes;
+// ln det R_i bounds every conditional covariance of the linear model from below.
+JcbbLikelihood random_likelihood(std::mt19937_64& rng, const Problem& problem) {
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  JcbbLikelihood likelihood;
+  for (const Mat2& R : problem.model.R) {
+    likelihood.log_unexplained_density.push_back(-6.0 + 7.0 * uniform(rng));
+    likelihood.log_noise_det.push_back(std::log(R.determinant()));
+  }
+  return likelihood;
+}
+
+void expect_likelihood_matches_exhaustive(bool allow_star, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  int unique_checked = 0, fewer_than_most_pairings = 0;
+  for (int trial = 0; trial < 400; ++trial) {
+    const Problem problem = random_problem(rng, 6);
+    const JcbbLikelihood likelihood = random_likelihood(rng, problem);
+    JcbbOptions options;
+    options.allow_star = allow_star;
+    Jcbb solver(options);
+    const JcbbResult result = solver.solve(problem.candidates, problem.model, likelihood);
+    ASSERT_FALSE(result.bound_hit);
+    ASSERT_EQ(result.pairings, count_pairings(result.feature_of));
+    LikelihoodBest reference;
+    std::vector<Pairing> hypothesis;
+    std::vector<int> feature_of(problem.candidates.size(), kStar);
+    enumerate_likelihood(problem, likelihood, options.confidence, allow_star, 0, hypothesis, feature_of,
+                         reference);
+    if (reference.feature_of.empty()) {  // JCBB*: nothing pairs every measurement
+      ASSERT_EQ(result.pairings, 0) << "trial " << trial;
+      continue;
+    }
+    const double found = direct_log_likelihood_ratio(stack_hypothesis(result.feature_of, problem.model).pairings,
+                                                     problem.model, likelihood);
+    ASSERT_NEAR(found, reference.score, 1e-8 * std::max(1.0, std::abs(reference.score))) << "trial " << trial;
+    if (reference.score - reference.runner_up_score > 1e-7) {
+      ASSERT_EQ(result.feature_of, reference.feature_of) << "trial " << trial;
+      ++unique_checked;
+    }
+    fewer_than_most_pairings += result.pairings < solver.solve(problem.candidates, problem.model).pairings;
+  }
+  EXPECT_GT(unique_checked, 200);
+  if (allow_star) {
+    EXPECT_GT(fewer_than_most_pairings, 20);  // the two criteria do differ
+  }
+}
+
+TEST(Jcbb, LikelihoodCriterionMatchesExhaustiveSearch) { expect_likelihood_matches_exhaustive(true, 21); }
+
+TEST(Jcbb, LikelihoodCriterionStarFreeVariantMatchesExhaustiveSearch) {
+  expect_likelihood_matches_exhaustive(false, 22);
+}
+
+TEST(Jcbb, LikelihoodCriterionNeedsOneDensityPerMeasurement) {
+  LinearScanModel model;
+  JcbbLikelihood likelihood;
+  likelihood.log_unexplained_density = {0.0};
+  likelihood.log_noise_det = {0.0, 0.0};
+  Jcbb solver;
+  EXPECT_THROW(solver.solve({{}, {}}, model, likelihood), InvalidArgument);
+}
 
 TEST(Jcbb, NodeBoundReturnsAnAdmissibleHypothesis) {
   std::mt19937_64 rng(5);

@@ -154,6 +154,8 @@ def test_min_sightings_one_turns_the_policy_off():
     ("gate_confidence", 0.0),
     ("gate_confidence", 1.0),
     ("jcbb_max_nodes", 0),
+    ("unexplained_density", -0.1),
+    ("unexplained_density", float("inf")),
     ("min_sightings", 0),
     ("tentative_window", 0),
     ("tentative_window", 2.5),
