@@ -27,6 +27,16 @@ for t in straight loop lawn_mowing snail; do
   run "assoc_$t" sim --trajectory "$t" --steps 600 --association jcbb --clutter 0.1 --filter both
 done
 run assoc_nn_loop sim --trajectory loop --steps 600 --association nn --clutter 0.1 --filter ekf
+# Where NN fails: 3x the odometry noise.
+for a in nn jcbb; do
+  run "assoc_${a}_loop_noise3" sim --trajectory loop --steps 600 --association "$a" --clutter 0.1 \
+    --odometry-noise-scale 3 --filter both
+done
+# The likelihood criterion in JCBB (opt-in) with a wider gate.
+for t in loop lawn_mowing; do
+  run "assoc_likelihood_$t" sim --trajectory "$t" --steps 600 --association jcbb --clutter 0.1 \
+    --gate 0.999 --unexplained-density 0.02 --filter both
+done
 run association association
 # Real data (issue 7).
 run vp vp --filter both

@@ -233,10 +233,19 @@ void DCSlam::run_amortized_budget() {
   }
   auto left = static_cast<std::int64_t>(std::ceil(budget));
   while (left > 0 && !queue_.empty()) {
-    JoinTask& task = *queue_.front();
+    // Earliest deadline first among the joins whose inputs exist: a small join queued behind a
+    // large independent one is done first, so the large one runs at the pace of its own
+    // deadline rather than at the sum of everyone's. The queue's order is post-order, so its
+    // front is always ready.
+    auto next = queue_.begin();
+    for (auto it = queue_.begin(); it != queue_.end(); ++it) {
+      const JoinTask& task = **it;
+      if (task.left->map && task.right->map && task.deadline_step < (*next)->deadline_step) next = it;
+    }
+    JoinTask& task = **next;
     left -= work_on(task, left);
     if (task.join && !task.join->done()) break;
-    queue_.pop_front();
+    queue_.erase(next);
   }
 }
 

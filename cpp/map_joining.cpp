@@ -38,6 +38,31 @@ Eigen::Matrix<double, 2, 3> point_jacobian(const Vec2& rotated) {
   return J;
 }
 
+// One panel [k0, k0 + width) of a right-looking blocked Cholesky factorisation S = L L', in
+// place in the lower triangle: factor the diagonal block, solve the panel below it, update the
+// trailing lower triangle. Panels in order give the same factor however they are spread over
+// calls. Returns the work in units of eight multiply-adds.
+std::int64_t factor_panel(Eigen::MatrixXd& S, Eigen::Index k0, Eigen::Index width) {
+  const Eigen::Index N = S.rows();
+  width = std::min(width, N - k0);
+  const Eigen::Index below = N - k0 - width;
+  auto diagonal = S.block(k0, k0, width, width);
+  const Eigen::LLT<Eigen::MatrixXd> llt(diagonal);
+  if (llt.info() != Eigen::Success) {
+    throw std::runtime_error(
+        "map join: the covariance of the matched-pair constraints is not positive definite "
+        "(two matched features are perfectly correlated)");
+  }
+  diagonal.triangularView<Eigen::Lower>() = llt.matrixL();
+  if (below > 0) {
+    auto panel = S.block(k0 + width, k0, below, width);
+    diagonal.triangularView<Eigen::Lower>().transpose().solveInPlace<Eigen::OnTheRight>(panel);
+    S.block(k0 + width, k0 + width, below, below).selfadjointView<Eigen::Lower>().rankUpdate(panel, -1.0);
+  }
+  const auto w = static_cast<std::int64_t>(width), b = static_cast<std::int64_t>(below);
+  return std::max<std::int64_t>(1, (b * b * w / 2 + b * w * w / 2 + w * w * w / 3) / 8);
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------
@@ -147,6 +172,7 @@ MapJoin::MapJoin(std::shared_ptr<const GaussianMap> first,
                           std::to_string(options_.max_iterations));
   }
   options_.block_columns = std::max<Index>(2, options_.block_columns & ~Index{1});
+  options_.work_unit = std::max<Index>(1, options_.work_unit);
   report_.features_first = first_->num_features();
   report_.features_second = second_->num_features();
 }
@@ -161,6 +187,15 @@ std::int64_t MapJoin::fill_element_cost() const {
 std::int64_t MapJoin::solve_row_cost() const {
   const auto r = static_cast<std::int64_t>(pairs_.size());
   return std::max<std::int64_t>(1, r * r / 4);
+}
+
+// Rows of the solve per unit of work, sized in multiply-adds: with r in the hundreds a fixed
+// row count would cost tens of ms in one step. Depends only on the join's sizes, so the
+// result never depends on the slicing.
+Index MapJoin::solve_rows_per_unit() const {
+  const Index r2 = 2 * static_cast<Index>(pairs_.size());
+  return std::clamp<Index>(options_.work_unit / std::max<Index>(1, r2 * r2 / 2), 64,
+                           4 * options_.block_columns);
 }
 
 std::int64_t MapJoin::remaining_work() const {
@@ -178,10 +213,17 @@ std::int64_t MapJoin::remaining_work() const {
       // r is unknown until association: counted as 0 here (the cost grows once the pairs are
       // known; a later deadline absorbs that, where an upper bound would inflate every budget).
       return work + static_cast<std::int64_t>(solve_rows);
-    case Phase::Constrain:
-      // Re-linearisation: at most max_iterations - 1 steps, tiny next to the fill.
+    case Phase::Relinearise:
+      // At most max_iterations - 1 steps, small next to the fill.
       return work + static_cast<std::int64_t>(solve_rows) * solve_row_cost() +
-             (pairs_.empty() ? 0 : (options_.max_iterations - 1) * relinearise_step_cost());
+             (!relinearisation_started_
+                  ? (pairs_.empty() ? 0 : (options_.max_iterations - 1) * relinearise_step_cost())
+              : gauss_newton_.converged
+                  ? 0
+                  : (options_.max_iterations - 1 - gauss_newton_.steps) * relinearise_step_cost());
+    case Phase::Constrain:
+    case Phase::Factor:
+      return work + static_cast<std::int64_t>(solve_rows) * solve_row_cost();
     case Phase::Solve:
       return work + static_cast<std::int64_t>(gain_.rows() - next_solve_row_) * solve_row_cost();
     default:
@@ -199,25 +241,51 @@ std::int64_t MapJoin::advance(std::int64_t budget) {
         associate();
         const std::int64_t units = first_->num_features() + second_->num_features();
         spent += units;
-        phase_ = Phase::Constrain;
+        phase_ = Phase::Relinearise;
+        relinearisation_started_ = false;
         break;
       }
-      case Phase::Constrain: {
-        spent += relinearise();
-        constrain();
-        const std::int64_t r = static_cast<std::int64_t>(pairs_.size());
-        spent += static_cast<std::int64_t>(gain_.rows()) + r * r;
-        phase_ = Phase::Solve;
+      case Phase::Relinearise:
+        if (!relinearisation_started_) {
+          begin_relinearisation();
+          relinearisation_started_ = true;
+          spent += static_cast<std::int64_t>(4 * pairs_.size() * pairs_.size());
+        } else if (!gauss_newton_.converged) {
+          spent += relinearise_unit();
+        }
+        if (gauss_newton_.converged) {
+          spent += finish_relinearisation();
+          phase_ = Phase::Constrain;
+        }
         break;
-      }
+      case Phase::Constrain:
+        if (!frame_) {
+          begin_constraints();
+          spent += static_cast<std::int64_t>(second_->dim());
+        }
+        spent += constrain_next_pairs();
+        if (next_pair_ == static_cast<Index>(pairs_.size())) {
+          begin_factor();
+          spent += static_cast<std::int64_t>(pairs_.size() * pairs_.size());
+          phase_ = constraint_factor_.rows() > 0 ? Phase::Factor : Phase::Solve;
+          next_solve_row_ = 0;
+        }
+        break;
+      case Phase::Factor:
+        spent += factor_next_panel();
+        if (next_panel_ == constraint_factor_.rows()) phase_ = Phase::Solve;
+        break;
       case Phase::Solve:
         spent += solve_next_rows();
-        if (next_solve_row_ == gain_.rows()) phase_ = Phase::Assemble;
+        if (next_solve_row_ == gain_.rows()) {
+          phase_ = Phase::Assemble;
+          next_assemble_row_ = -1;
+        }
         break;
       case Phase::Assemble:
-        assemble();
-        spent += result_.dim();
-        phase_ = Phase::Fill;
+        if (next_assemble_row_ < 0) begin_assemble();
+        spent += assemble_next_rows();
+        if (next_assemble_row_ == result_.dim()) phase_ = Phase::Fill;
         break;
       case Phase::Fill:
         spent += fill_next_block();
@@ -305,50 +373,66 @@ std::int64_t MapJoin::relinearise_step_cost() const {
 // on the constrained MAP: x+ = x0 + P0 H' λ, λ = (H P0 H')^-1 (-c(x) - H (x0 - x)), H = dc/dx
 // at x. Only s enters c, so the steps are taken in s with its prior covariance P_ss (blocks of
 // P1 and P2); m2's other elements then follow as x0 + P0 H' λ with the last λ, O(n r). The
-// pipeline takes the final step itself, linearised at the point found here.
-std::int64_t MapJoin::relinearise() {
+// pipeline takes the final step itself, linearised at the point found here. Each step is its
+// own unit of work (amortized D&C spreads them over frames); begin, step, finish.
+void MapJoin::begin_relinearisation() {
   const GaussianMap& m1 = *first_;
   const GaussianMap& m2 = *second_;
   lin_first_robot_ = m1.robot();
   lin_second_x_ = m2.x();
   const Index r = static_cast<Index>(pairs_.size());
   report_.iterations = r > 0 ? 1 : 0;
-  if (r == 0 || options_.max_iterations == 1) return 0;
+  gauss_newton_.steps = 0;
+  gauss_newton_.converged = r == 0 || options_.max_iterations == 1;
+  if (gauss_newton_.converged) return;
 
   const Index ds = 3 + 4 * r, second_begin = 3 + 2 * r;
-  std::vector<Index> rows1 = {0, 1, 2}, rows2;
+  std::vector<Index> rows1 = {0, 1, 2};
+  std::vector<Index>& rows2 = gauss_newton_.second_rows;
+  rows2.clear();
   for (const auto& [i, j] : pairs_) {
     rows1.push_back(GaussianMap::feature_offset(i));
     rows1.push_back(GaussianMap::feature_offset(i) + 1);
     rows2.push_back(GaussianMap::feature_offset(j));
     rows2.push_back(GaussianMap::feature_offset(j) + 1);
   }
-  Eigen::VectorXd s0(ds);
-  Eigen::MatrixXd P_ss = Eigen::MatrixXd::Zero(ds, ds);
+  Eigen::VectorXd& s0 = gauss_newton_.prior;
+  Eigen::MatrixXd& P_ss = gauss_newton_.covariance;
+  s0.resize(ds);
+  P_ss = Eigen::MatrixXd::Zero(ds, ds);
   const auto gather = [&](const GaussianMap& map, const std::vector<Index>& rows, Index at) {
     const Index n = static_cast<Index>(rows.size());
-    for (Index a = 0; a < n; ++a) {
-      s0(at + a) = map.x()(rows[static_cast<std::size_t>(a)]);
-      for (Index b = 0; b < n; ++b) {
-        P_ss(at + a, at + b) =
-            map.P()(rows[static_cast<std::size_t>(a)], rows[static_cast<std::size_t>(b)]);
-      }
+    for (Index b = 0; b < n; ++b) {  // column by column: both matrices are column-major
+      s0(at + b) = map.x()(rows[static_cast<std::size_t>(b)]);
+      const auto source = map.P().col(rows[static_cast<std::size_t>(b)]);
+      for (Index a = 0; a < n; ++a) P_ss(at + a, at + b) = source(rows[static_cast<std::size_t>(a)]);
     }
   };
   gather(m1, rows1, 0);
   gather(m2, rows2, second_begin);
   // Converged when no coordinate moves by more than 1e-9 of its prior standard deviation
   // (or, for one known almost exactly, a few ulps of its value).
-  const Eigen::ArrayXd tolerance =
-      1e-9 * P_ss.diagonal().array().sqrt() + 1e-14 * s0.array().abs();
+  gauss_newton_.tolerance = 1e-9 * P_ss.diagonal().array().sqrt() + 1e-14 * s0.array().abs();
+  gauss_newton_.point = s0;
+}
 
-  Eigen::VectorXd s = s0, lambda(2 * r), next(ds);
-  Eigen::MatrixXd PHt(ds, 2 * r), S(2 * r, 2 * r);
-  std::vector<Eigen::Matrix<double, 2, 3>> J_robot(static_cast<std::size_t>(r));
-  Eigen::VectorXd rhs(2 * r);
-  Mat2 rotation;
-  int steps = 0;
-  while (steps + 1 < options_.max_iterations) {
+// One unit of a Gauss–Newton step: first H at the current point, P_ss H', S and the right-hand
+// side (O(r^2)); then S's Cholesky factor a panel at a time; then λ and the next point.
+std::int64_t MapJoin::relinearise_unit() {
+  GaussNewton& gn = gauss_newton_;
+  const Index r = static_cast<Index>(pairs_.size());
+  const Index ds = 3 + 4 * r, second_begin = 3 + 2 * r;
+  const Eigen::VectorXd& s0 = gn.prior;
+  const Eigen::MatrixXd& P_ss = gn.covariance;
+  Eigen::VectorXd& s = gn.point;
+  if (gn.next_panel < 0) {
+    Eigen::MatrixXd& PHt = gn.gain;
+    Eigen::MatrixXd& S = gn.factor;
+    PHt.resize(ds, 2 * r);
+    S.resize(2 * r, 2 * r);
+    gn.rhs.resize(2 * r);
+    std::vector<Eigen::Matrix<double, 2, 3>> J_robot(static_cast<std::size_t>(r));
+    Mat2& rotation = gn.rotation;
     const double c = std::cos(s(2)), sn = std::sin(s(2));
     rotation << c, -sn, sn, c;
     const Eigen::VectorXd offset = s0 - s;
@@ -360,7 +444,7 @@ std::int64_t MapJoin::relinearise() {
       const Vec2 constraint = s.segment<2>(3 + 2 * k) - s.head<2>() - rotated;
       const Vec2 H_offset = offset.segment<2>(3 + 2 * k) - J * offset.head<3>() -
                             rotation * offset.segment<2>(second_begin + 2 * k);
-      rhs.segment<2>(2 * k) = -constraint - H_offset;
+      gn.rhs.segment<2>(2 * k) = -constraint - H_offset;
       PHt.middleCols<2>(2 * k).noalias() = P_ss.middleCols<2>(3 + 2 * k);
       PHt.middleCols<2>(2 * k).noalias() -= P_ss.leftCols<3>() * J.transpose();
       PHt.middleCols<2>(2 * k).noalias() -=
@@ -372,45 +456,53 @@ std::int64_t MapJoin::relinearise() {
       S.middleRows<2>(2 * k).noalias() -= rotation * PHt.middleRows<2>(second_begin + 2 * k);
     }
     S = 0.5 * (S + S.transpose()).eval();
-    const Eigen::LLT<Eigen::MatrixXd> llt(S);
-    if (llt.info() != Eigen::Success) {
-      throw std::runtime_error(
-          "map join: the covariance of the matched-pair constraints is not positive definite "
-          "(two matched features are perfectly correlated)");
-    }
-    lambda = llt.solve(rhs);
-    next = s0;
-    next.noalias() += PHt * lambda;
-    const bool converged = ((next - s).array().abs() <= tolerance).all();
-    s = next;
-    ++steps;
-    if (converged) break;
+    gn.next_panel = 0;
+    return std::max<std::int64_t>(1, static_cast<std::int64_t>(14 * r * ds) / 8);
   }
-  report_.iterations = steps + 1;
-  lin_first_robot_ = s.head<3>();
+  if (gn.next_panel < gn.factor.rows()) {
+    const std::int64_t cost = factor_panel(gn.factor, gn.next_panel, options_.block_columns);
+    gn.next_panel += options_.block_columns;
+    return cost;
+  }
+  gn.multipliers = gn.rhs;
+  gn.factor.triangularView<Eigen::Lower>().solveInPlace(gn.multipliers);
+  gn.factor.triangularView<Eigen::Lower>().transpose().solveInPlace(gn.multipliers);
+  Eigen::VectorXd next = s0;
+  next.noalias() += gn.gain * gn.multipliers;
+  gn.converged = ((next - s).array().abs() <= gn.tolerance).all();
+  s = next;
+  ++gn.steps;
+  if (gn.steps + 1 >= options_.max_iterations) gn.converged = true;
+  gn.next_panel = -1;
+  return std::max<std::int64_t>(1, static_cast<std::int64_t>(ds * r) / 4);
+}
+
+std::int64_t MapJoin::finish_relinearisation() {
+  const Index r = static_cast<Index>(pairs_.size());
+  if (gauss_newton_.steps == 0) return 0;
+  report_.iterations = gauss_newton_.steps + 1;
+  lin_first_robot_ = gauss_newton_.point.head<3>();
   // m2's rows of P0 H' λ: its prior covariance with each f_j times (dc_k/df_j)' λ_k.
-  const auto P2 = m2.P();
+  const auto P2 = second_->P();
   for (Index k = 0; k < r; ++k) {
-    const Vec2 pulled = -rotation.transpose() * lambda.segment<2>(2 * k);
-    lin_second_x_.noalias() += P2.middleCols(rows2[static_cast<std::size_t>(2 * k)], 2) * pulled;
+    const Vec2 pulled = -gauss_newton_.rotation.transpose() * gauss_newton_.multipliers.segment<2>(2 * k);
+    lin_second_x_.noalias() +=
+        P2.middleCols(gauss_newton_.second_rows[static_cast<std::size_t>(2 * k)], 2) * pulled;
   }
-  return steps * relinearise_step_cost() + static_cast<std::int64_t>(m2.dim()) * r / 4;
+  gauss_newton_ = GaussNewton();
+  return static_cast<std::int64_t>(second_->dim()) * r / 4;
 }
 
 // Kept elements of m2 and the constraints' P H', S = L L' and L^-1 h (O(n r + r^3)), linearised
 // at the point relinearise() found.
-void MapJoin::constrain() {
+void MapJoin::begin_constraints() {
   const GaussianMap& m1 = *first_;
   const GaussianMap& m2 = *second_;
-  const JoinFrame frame(m1, m2, lin_first_robot_, lin_second_x_);
-  rotation_ = frame.rotation();
+  frame_ = std::make_unique<JoinFrame>(m1, m2, lin_first_robot_, lin_second_x_);
+  rotation_ = frame_->rotation();
   const Index n1 = m1.num_features(), n2 = m2.num_features();
-  const Index d2 = m2.dim();
   const Index r = static_cast<Index>(pairs_.size());
-  const auto& J_R = frame.jacobian_first_robot();
-  const auto P1 = m1.P();
-  const auto P2 = m2.P();
-  const Mat3 P1_RR = P1.topLeftCorner<3, 3>();
+  const auto& J_R = frame_->jacobian_first_robot();
 
   // Kept elements of m2: its robot (R2, the joined map's robot) and the features neither
   // matched nor dropped.
@@ -429,15 +521,28 @@ void MapJoin::constrain() {
   for (Index a = 0; a < d2k; ++a) {
     J_R_kept_.row(a) = J_R.row(second_kept_rows_[static_cast<std::size_t>(a)]);
   }
+  gain_.resize(2 * n1 + m2.dim(), 2 * r);
+  whitened_h_.resize(2 * r);
+  next_pair_ = 0;
+}
 
-  // P H' for the constraints f_i - f'_j: rows [F1 (2 n1); all of m2 (d2)].
+// Columns of P H' (rows [F1 (2 n1); all of m2 (d2)]) and entries of h for the constraints
+// f_i - f'_j of the next pairs; O(n) a pair.
+std::int64_t MapJoin::constrain_next_pairs() {
+  const GaussianMap& m1 = *first_;
+  const GaussianMap& m2 = *second_;
+  const Index n1 = m1.num_features(), d2 = m2.dim();
+  const Index r = static_cast<Index>(pairs_.size());
+  const auto& J_R = frame_->jacobian_first_robot();
+  const auto P1 = m1.P();
+  const auto P2 = m2.P();
+  const Mat3 P1_RR = P1.topLeftCorner<3, 3>();
   const auto A1 = P1.block(3, 0, 2 * n1, 3);  // cov(F1, R1)
-  gain_.resize(2 * n1 + d2, 2 * r);
   auto PHt_first = gain_.topRows(2 * n1);
   auto PHt_second = gain_.bottomRows(d2);
-  Eigen::VectorXd h(2 * r);
   Eigen::MatrixXd second_col(d2, 2);
-  for (Index k = 0; k < r; ++k) {
+  const Index end = std::min<Index>(r, next_pair_ + kPairsPerUnit);
+  for (Index k = next_pair_; k < end; ++k) {
     const auto [i, j] = pairs_[static_cast<std::size_t>(k)];
     const Index oi = GaussianMap::feature_offset(i), oj = GaussianMap::feature_offset(j);
     const Eigen::Matrix<double, 2, 3> J_j = J_R.middleRows<2>(oj);
@@ -449,31 +554,46 @@ void MapJoin::constrain() {
     PHt_second.middleCols<2>(2 * k).noalias() = J_R * P1.block(0, oi, 3, 2);
     PHt_second.middleCols<2>(2 * k).noalias() -= J_R * (P1_RR * J_j.transpose());
     PHt_second.middleCols<2>(2 * k) -= second_col;
-    h.segment<2>(2 * k) = m1.feature(i) - frame.moved_second_feature(j);
+    whitened_h_.segment<2>(2 * k) = m1.feature(i) - frame_->moved_second_feature(j);
   }
-  Eigen::MatrixXd S(2 * r, 2 * r);
+  const std::int64_t pairs_done = end - next_pair_;
+  next_pair_ = end;
+  return pairs_done * 2 * static_cast<std::int64_t>(gain_.rows());
+}
+
+// S = H P H' from the rows of P H' (O(r^2)); the factorisation then runs a panel at a time.
+void MapJoin::begin_factor() {
+  const GaussianMap& m1 = *first_;
+  const Index n1 = m1.num_features();
+  const Index r = static_cast<Index>(pairs_.size());
+  Eigen::MatrixXd& S = constraint_factor_;
+  S.resize(2 * r, 2 * r);
   for (Index a = 0; a < r; ++a) {
     const auto [i, j] = pairs_[static_cast<std::size_t>(a)];
-    S.middleRows<2>(2 * a) = PHt_first.middleRows<2>(2 * i) -
-                             PHt_second.middleRows<2>(GaussianMap::feature_offset(j));
+    S.middleRows<2>(2 * a) = gain_.middleRows<2>(2 * i) -
+                             gain_.middleRows<2>(2 * n1 + GaussianMap::feature_offset(j));
   }
   S = 0.5 * (S + S.transpose()).eval();
-  Eigen::LLT<Eigen::MatrixXd> llt(S);
-  if (r > 0 && llt.info() != Eigen::Success) {
-    throw std::runtime_error(
-        "map join: the covariance of the matched-pair constraints is not positive definite "
-        "(two matched features are perfectly correlated)");
+  next_panel_ = 0;
+}
+
+// One panel of a right-looking blocked Cholesky factorisation S = L L', in place in the
+// lower triangle: factor the diagonal block, solve the panel below it, update the trailing
+// lower triangle. The order of operations is fixed, so slicing never changes the result.
+std::int64_t MapJoin::factor_next_panel() {
+  const std::int64_t cost = factor_panel(constraint_factor_, next_panel_, options_.block_columns);
+  next_panel_ = std::min<Index>(constraint_factor_.rows(), next_panel_ + options_.block_columns);
+  if (next_panel_ == constraint_factor_.rows()) {
+    constraint_factor_.triangularView<Eigen::Lower>().solveInPlace(whitened_h_);
+    next_solve_row_ = 0;
   }
-  constraint_factor_ = llt.matrixL();
-  whitened_h_ = h;
-  if (r > 0) constraint_factor_.triangularView<Eigen::Lower>().solveInPlace(whitened_h_);
-  next_solve_row_ = 0;
+  return cost;
 }
 
 // W = P H' L^-T, in place, one block of rows at a time (rows are independent).
 std::int64_t MapJoin::solve_next_rows() {
   const Index r2 = constraint_factor_.rows();
-  const Index rows = std::min<Index>(4 * options_.block_columns, gain_.rows() - next_solve_row_);
+  const Index rows = std::min<Index>(solve_rows_per_unit(), gain_.rows() - next_solve_row_);
   if (r2 > 0) {
     auto block = gain_.middleRows(next_solve_row_, rows);
     constraint_factor_.triangularView<Eigen::Lower>().transpose().solveInPlace<Eigen::OnTheRight>(block);
@@ -482,71 +602,82 @@ std::int64_t MapJoin::solve_next_rows() {
   return static_cast<std::int64_t>(rows) * solve_row_cost();
 }
 
-// The result's means and the low-rank factors of the fill (O(n r)).
-void MapJoin::assemble() {
-  const GaussianMap& m1 = *first_;
-  const GaussianMap& m2 = *second_;
-  const JoinFrame frame(m1, m2, lin_first_robot_, lin_second_x_);
+// The result's means and the low-rank factors of the fill (see the header), O(n r) in all,
+// a block of output rows per unit of work: output row o is m2's robot (o < 3), an m1 feature
+// (o < first_end) or an m2 feature, and each row only reads its own row of P H' (now W).
+void MapJoin::begin_assemble() {
   const Index d1k = static_cast<Index>(first_kept_rows_.size());
-  const Index r = static_cast<Index>(pairs_.size());
   const Index d2k = static_cast<Index>(second_kept_rows_.size());
-  const auto P1 = m1.P();
-  const Mat3 P1_RR = P1.topLeftCorner<3, 3>();
-  Eigen::MatrixXd A1(d1k, 3);  // cov(F1 kept, R1)
-  Eigen::MatrixXd W_first(d1k, 2 * r);
-  Eigen::VectorXd x_first(d1k);
-  for (Index a = 0; a < d1k; ++a) {
-    const Index row = first_kept_rows_[static_cast<std::size_t>(a)];
-    A1.row(a) = P1.block<1, 3>(row, 0);
-    W_first.row(a) = gain_.row(row - 3);
-    x_first(a) = m1.x()(row);
-  }
-  const Index n1 = m1.num_features();
-  Eigen::MatrixXd W_second_kept(d2k, 2 * r);
-  for (Index a = 0; a < d2k; ++a) {
-    W_second_kept.row(a) = gain_.row(2 * n1 + second_kept_rows_[static_cast<std::size_t>(a)]);
-  }
-  const Eigen::VectorXd& v = whitened_h_;
-
-  // The result: [R2'; F1 kept; F2' unmatched], means corrected by the constraints.
+  const Index k = 2 * static_cast<Index>(pairs_.size());
   const Index out_dim = 3 + d1k + (d2k - 3);
   result_ = GaussianMap::uninitialized(out_dim);
-  auto x = result_.x();
-  Vec3 robot = frame.moved_second_robot() - W_second_kept.topRows<3>() * v;
-  robot.z() = wrap_angle(robot.z());
-  x.head<3>() = robot;
-  x.segment(3, d1k) = x_first - W_first * v;
-  for (Index a = 3; a < d2k; a += 2) {
-    const Index j = (second_kept_rows_[static_cast<std::size_t>(a)] - 3) / 2;
-    x.segment<2>(3 + d1k + (a - 3)) =
-        frame.moved_second_feature(j) - W_second_kept.middleRows<2>(a) * v;
-  }
-
-  // Low-rank factors of the fill (see the header), rows in output order.
-  const Index k = 2 * r;
   left_.resize(out_dim, 6 + k);
-  const auto put_second_rows = [&](Index out_row, Index local_row, Index rows) {
-    left_.block(out_row, 0, rows, 3) = J_R_kept_.middleRows(local_row, rows) * P1_RR;
-    left_.block(out_row, 3, rows, k) = W_second_kept.middleRows(local_row, rows);
-    left_.block(out_row, 3 + k, rows, 3) = J_R_kept_.middleRows(local_row, rows);
-  };
-  put_second_rows(0, 0, 3);
-  put_second_rows(3 + d1k, 3, d2k - 3);
-  left_.block(3, 0, d1k, 3) = A1;
-  left_.block(3, 3, d1k, k) = W_first;
-  left_.block(3, 3 + k, d1k, 3).setZero();
   right_second_.resize(d2k, 3 + k);
-  right_second_ << J_R_kept_, -W_second_kept;
   right_first_.resize(d1k, 3 + k);
-  right_first_ << -W_first, A1;
-  gain_ = Eigen::MatrixXd();
-
   auto& ids = result_.ids();
   std::copy(first_kept_ids_.begin(), first_kept_ids_.end(), ids.begin());
   std::copy(second_kept_ids_.begin(), second_kept_ids_.end(),
             ids.begin() + static_cast<std::ptrdiff_t>(first_kept_ids_.size()));
   report_.features_joined = result_.num_features();
-  next_out_col_ = 0;
+  next_assemble_row_ = 0;
+}
+
+std::int64_t MapJoin::assemble_next_rows() {
+  const GaussianMap& m1 = *first_;
+  const JoinFrame& frame = *frame_;
+  const Index n1 = m1.num_features();
+  const Index first_end = 3 + static_cast<Index>(first_kept_rows_.size());
+  const Index k = 2 * static_cast<Index>(pairs_.size());
+  const Index out_dim = result_.dim();
+  const auto P1 = m1.P();
+  const Mat3 P1_RR = P1.topLeftCorner<3, 3>();
+  const Eigen::VectorXd& v = whitened_h_;
+  auto x = result_.x();
+  const Vec3 moved_robot = frame.moved_second_robot();
+  // Row-wise copies out of and into column-major matrices are strided: about 16
+  // multiply-adds' worth per element.
+  const Index rows = std::max<Index>(16, options_.work_unit / (16 * (6 + k)));
+  const Index end = std::min(out_dim, next_assemble_row_ + rows);
+  for (Index o = next_assemble_row_; o < end; ++o) {
+    if (o >= 3 && o < first_end) {  // an m1 feature: L = [A1 | W | 0], N = [-W | A1]
+      const Index b = o - 3;
+      const Index src = first_kept_rows_[static_cast<std::size_t>(b)];
+      const auto W_row = gain_.row(src - 3);
+      left_.block<1, 3>(o, 0) = P1.block<1, 3>(src, 0);
+      left_.row(o).segment(3, k) = W_row;
+      left_.block<1, 3>(o, 3 + k).setZero();
+      right_first_.row(b).head(k) = -W_row;
+      right_first_.block<1, 3>(b, k) = P1.block<1, 3>(src, 0);
+      x(o) = m1.x()(src) - W_row.dot(v);
+      continue;
+    }
+    // m2's robot or an m2 feature: L = [J_R P1_RR | W | J_R], N = [J_R | -W].
+    const Index a = o < 3 ? o : 3 + (o - first_end);
+    const Index src = second_kept_rows_[static_cast<std::size_t>(a)];
+    const auto W_row = gain_.row(2 * n1 + src);
+    left_.block<1, 3>(o, 0) = J_R_kept_.row(a) * P1_RR;
+    left_.row(o).segment(3, k) = W_row;
+    left_.block<1, 3>(o, 3 + k) = J_R_kept_.row(a);
+    right_second_.block<1, 3>(a, 0) = J_R_kept_.row(a);
+    right_second_.row(a).tail(k) = -W_row;
+    double moved;
+    if (o < 3) {
+      moved = moved_robot(o);
+    } else {
+      const Index j = (src - 3) / 2;
+      moved = frame.moved_second_feature(j)((src - 3) % 2);
+    }
+    x(o) = moved - W_row.dot(v);
+    if (o == 2) x(o) = wrap_angle(x(o));
+  }
+  const std::int64_t done = end - next_assemble_row_;
+  next_assemble_row_ = end;
+  if (end == out_dim) {
+    gain_ = Eigen::MatrixXd();
+    next_out_col_ = 0;
+    next_fill_row_ = 0;
+  }
+  return done * (6 + k) / 4 + 1;
 }
 
 // Applies J_2 (block-diagonal rotations: Rot on the robot's (x, y), identity on its heading,
@@ -623,42 +754,58 @@ std::int64_t MapJoin::fill_next_block() {
   const Index k = static_cast<Index>(right_first_.cols()) - 3;
   const Index col = next_out_col_;
   auto out = result_.P();
-  Index width;
   if (col < 3) {  // the robot's columns: base J_2 P2 J_2' on m2's rows, 0 on F1's
-    width = 3;
     const Index kept_features = out_dim - first_end;
     write_moved_second_block(0, 3, 0, 3, 0, 0);
     out.block(3, 0, d1k, 3).setZero();
     write_moved_second_block(3, kept_features, 0, 3, first_end, 0);
     out.block(0, 0, out_dim, 3).noalias() +=
         left_.leftCols(3 + k) * right_second_.topRows(3).transpose();
-  } else if (col < first_end) {  // m1's features: base P1 on F1's rows, 0 on m2's
-    width = std::min(options_.block_columns, first_end - col);
+    out.block(0, 3, 3, out_dim - 3) = out.block(3, 0, out_dim - 3, 3).transpose();
+    next_out_col_ = 3;
+    return static_cast<std::int64_t>(out_dim) * 3 * fill_element_cost();
+  }
+  // A feature column block [col, col + width) is written a tile of rows at a time, rows from
+  // the diagonal down: the tiles keep the block's width (so the GEMM streams the low-rank
+  // factor once per block, as unsliced) and bound a unit of work when r is large. Tiles
+  // start on odd rows, so they never split a feature's pair of rows.
+  const bool first_columns = col < first_end;
+  const Index width = std::min(options_.block_columns, (first_columns ? first_end : out_dim) - col);
+  const Index row0 = next_fill_row_ > col ? next_fill_row_ : col;
+  // A tile element costs its base (a gather, and for m2 a rotation: about 16 multiply-adds'
+  // worth) plus its dot product of length 3 + k.
+  const Index tile = std::max<Index>(64, (options_.work_unit / (width * (19 + k))) & ~Index{1});
+  const Index row1 = std::min(out_dim, row0 + tile);
+  const Index rows = row1 - row0;
+  if (first_columns) {  // m1's features: base P1 on F1's rows, 0 on m2's
     const Index begin = col - 3;  // coordinate within F1 kept
-    write_first_block(begin, first_end - col, begin, width, col, col);
-    out.block(first_end, col, out_dim - first_end, width).setZero();
-    out.block(col, col, out_dim - col, width).noalias() +=
-        left_.rightCols(3 + k).middleRows(col, out_dim - col) *
+    const Index m1_rows = std::max<Index>(0, std::min(row1, first_end) - row0);
+    if (m1_rows > 0) write_first_block(row0 - 3, m1_rows, begin, width, row0, col);
+    out.block(row0 + m1_rows, col, rows - m1_rows, width).setZero();
+    out.block(row0, col, rows, width).noalias() +=
+        left_.rightCols(3 + k).middleRows(row0, rows) *
         right_first_.middleRows(begin, width).transpose();
   } else {  // m2's unmatched features: base J_2 P2 J_2'
-    width = std::min(options_.block_columns, out_dim - col);
     const Index local = 3 + (col - first_end);
-    write_moved_second_block(local, out_dim - col, local, width, col, col);
-    out.block(col, col, out_dim - col, width).noalias() +=
-        left_.leftCols(3 + k).middleRows(col, out_dim - col) *
+    write_moved_second_block(3 + (row0 - first_end), rows, local, width, row0, col);
+    out.block(row0, col, rows, width).noalias() +=
+        left_.leftCols(3 + k).middleRows(row0, rows) *
         right_second_.middleRows(local, width).transpose();
   }
-  const Index below = out_dim - col - width;
-  if (col >= 3 && below > 0) {
-    out.block(col, col + width, width, below) = out.block(col + width, col, below, width).transpose();
-  } else if (col < 3) {
-    out.block(0, 3, 3, out_dim - 3) = out.block(3, 0, out_dim - 3, 3).transpose();
+  next_fill_row_ = row1;
+  if (row1 == out_dim) {  // block done: mirror it into the rows above the later columns
+    const Index below = out_dim - col - width;
+    if (below > 0) {
+      out.block(col, col + width, width, below) = out.block(col + width, col, below, width).transpose();
+    }
+    next_out_col_ += width;
+    next_fill_row_ = 0;
   }
-  next_out_col_ += width;
-  return static_cast<std::int64_t>(out_dim - col) * width * fill_element_cost();
+  return static_cast<std::int64_t>(rows) * width * fill_element_cost();
 }
 
 void MapJoin::release_inputs() {
+  frame_.reset();
   first_.reset();
   second_.reset();
   lin_second_x_ = Eigen::VectorXd();

@@ -29,8 +29,11 @@ struct JoinOptions {
   double rjc_p_good = 0.8;
   double rjc_p_fail = 0.01;
   std::uint64_t seed = 0;
-  // Width of the column blocks the result is written in: the unit of resumable work.
+  // Width of the column blocks the result is written in (and of the Cholesky panels).
   Eigen::Index block_columns = 64;
+  // Multiply-adds that bound one unit of resumable work (rows of a fill tile, of the solve, of
+  // the assembly): small units keep amortized steps short when r is in the hundreds.
+  Eigen::Index work_unit = Eigen::Index{1} << 20;
   // Linearisation points of the constraint update (Gauss–Newton steps of the iterated EKF,
   // docs/divide_and_conquer.md): 1 linearises ⊕ once at the prior means (the one-shot join);
   // more re-linearise at the constrained estimate until the step is negligible.
@@ -134,15 +137,24 @@ class MapJoin {
   const std::vector<std::int64_t>& dropped_ids() const { return dropped_ids_; }
 
  private:
-  enum class Phase { Associate, Constrain, Solve, Assemble, Fill, Done };
+  enum class Phase { Associate, Relinearise, Constrain, Factor, Solve, Assemble, Fill, Done };
   void associate();
-  // Gauss–Newton on the constrained MAP over the variables the constraints involve; sets the
-  // linearisation point (lin_first_robot_, lin_second_x_) and returns the work it did.
-  std::int64_t relinearise();
+  // Gauss–Newton on the constrained MAP over the variables the constraints involve, one step
+  // per unit of work; finishing sets the linearisation point (lin_first_robot_,
+  // lin_second_x_) and returns the work it did.
+  void begin_relinearisation();
+  std::int64_t relinearise_unit();
+  std::int64_t finish_relinearisation();
   std::int64_t relinearise_step_cost() const;
-  void constrain();
+  // The constraints at the linearisation point: kept elements of m2, then P H' and h a few
+  // pairs per unit of work (O(n) a pair), then S = H P H' factored a panel at a time.
+  void begin_constraints();
+  std::int64_t constrain_next_pairs();
+  void begin_factor();
+  std::int64_t factor_next_panel();
   std::int64_t solve_next_rows();
-  void assemble();
+  void begin_assemble();
+  std::int64_t assemble_next_rows();
   std::int64_t fill_next_block();
   // Writes J_2 P2 J_2' for m2's kept elements, local rows [row_begin, row_begin + rows) x
   // local columns [col_begin, col_begin + width), into the output at (out_row, out_col).
@@ -172,6 +184,18 @@ class MapJoin {
   std::vector<char> second_dropped_;  // per m2 feature: a tentative one left unmatched
   Vec3 lin_first_robot_ = Vec3::Zero();
   Eigen::VectorXd lin_second_x_;
+  struct GaussNewton {  // state kept between the steps of the re-linearisation
+    Eigen::VectorXd prior, point, multipliers;  // s0, s, λ of the last step
+    Eigen::MatrixXd covariance;                 // P_ss
+    Eigen::MatrixXd gain, factor;               // P_ss H' and S (becoming L) of this step
+    Eigen::VectorXd rhs;
+    Eigen::Index next_panel = -1;               // -1: the step's S is not built yet
+    Eigen::ArrayXd tolerance;
+    std::vector<Eigen::Index> second_rows;      // rows of the matched f_j in m2
+    Mat2 rotation = Mat2::Identity();           // R1's rotation where the last step linearised
+    int steps = 0;
+    bool converged = true;
+  } gauss_newton_;
 
   // Prepared for the fill. Every block of the result is a "base" (a block of P1, or of
   // J_2 P2 J_2') plus a low-rank term L N' with inner dimension 3 + 2r:
@@ -183,9 +207,15 @@ class MapJoin {
   std::vector<Eigen::Index> second_kept_rows_;  // m2's robot rows, then unmatched features
   std::vector<std::int64_t> second_kept_ids_;
   Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_kept_;  // rows of J_R for the kept elements
+  static constexpr Eigen::Index kPairsPerUnit = 16;
+  Eigen::Index solve_rows_per_unit() const;
+  bool relinearisation_started_ = false;
+  std::unique_ptr<JoinFrame> frame_;   // m2 moved into B1 at the linearisation point
+  Eigen::Index next_pair_ = 0;
+  Eigen::Index next_panel_ = 0;
   Eigen::MatrixXd gain_;               // P H' (rows: F1, then all of m2), then W in place
-  Eigen::MatrixXd constraint_factor_;  // L, S = L L'
-  Eigen::VectorXd whitened_h_;         // L^-1 h
+  Eigen::MatrixXd constraint_factor_;  // S, becoming L (S = L L') in its lower triangle
+  Eigen::VectorXd whitened_h_;         // h, then L^-1 h
   Eigen::Index next_solve_row_ = 0;
   Eigen::MatrixXd left_;
   Eigen::MatrixXd right_second_;
@@ -193,6 +223,8 @@ class MapJoin {
   Mat2 rotation_;
   GaussianMap result_;
   Eigen::Index next_out_col_ = 0;
+  Eigen::Index next_fill_row_ = 0;      // next row of the column block being filled
+  Eigen::Index next_assemble_row_ = -1;  // -1: assembly not begun
   Eigen::MatrixXd scratch_;
 };
 

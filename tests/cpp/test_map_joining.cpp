@@ -298,6 +298,36 @@ TEST(MapJoining, ResumedInSlicesGivesBitwiseTheSameResult) {
   for (const auto& [from, to] : merged) EXPECT_EQ(from, to);  // known ids merge equal ids
 }
 
+// Tiny work units and panels: the fill in row tiles, the Cholesky factor in panels of 4, P H'
+// 16 pairs at a time, the assembly and the solve a few rows at a time. Still the textbook
+// join, and bitwise the same however the units are spread over calls.
+TEST(MapJoining, SmallWorkUnitsGiveTheTextbookJoin) {
+  std::mt19937_64 rng(11);
+  std::vector<std::int64_t> ids1, ids2;
+  for (int i = 0; i < 45; ++i) ids1.push_back(i);
+  for (int j = 0; j < 40; ++j) ids2.push_back(j < 22 ? 2 * j : 500 + j);  // 22 shared
+  const auto m1 = std::make_shared<const GaussianMap>(random_map(rng, ids1));
+  const auto m2 = std::make_shared<const GaussianMap>(random_map(rng, ids2));
+  JoinOptions options;
+  options.block_columns = 4;
+  options.work_unit = 64;
+  options.max_iterations = 1;
+  MapJoin at_once(m1, m2, options);
+  at_once.finish();
+  EXPECT_EQ(at_once.report().pairings, 22);
+  MapJoin sliced(m1, m2, options);
+  int slices = 0;
+  while (!sliced.done()) {
+    sliced.advance(1);
+    ++slices;
+  }
+  EXPECT_GT(slices, 50);
+  const GaussianMap a = at_once.take_result(), b = sliced.take_result();
+  expect_maps_equal(a, dense_join(*m1, *m2, associate_by_id(*m1, *m2)), 1e-9);
+  EXPECT_TRUE((a.x().array() == b.x().array()).all());
+  EXPECT_TRUE((a.P().array() == b.P().array()).all());
+}
+
 // ---------------------------------------------------------------------------------------
 // The iterated join against an independent dense oracle: the constrained MAP of the stacked
 // prior x = [m1.x; m2.x] ~ N(x0, blkdiag(P1, P2)) under f_i = R1 ⊕ f'_j, by the iterated EKF
