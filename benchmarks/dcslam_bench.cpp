@@ -42,6 +42,7 @@ const char* kUsage = R"(dcslam_bench: native benchmarks of EKF and D&C SLAM.
   dcslam_bench isam FILE   [options]   an iSAM/GTSAM 2D file, point observations, known ids
   dcslam_bench association [options]   cost of a join's association vs map size: RJC, JCBB over
                                        the whole overlap, all-pairs individual compatibility
+  dcslam_bench ekf-association [options]   the EKF's association per scan vs map size
 
 Options of sim and scaling (defaults in brackets):
   --trajectory straight|loop|lawn_mowing|snail   [snail]
@@ -71,6 +72,12 @@ Options of association:
   --sizes a,b,...      features of both maps together              [1000,2000,5000,10000]
   --overlap K          features of the second map re-observed      [200]
   --repetitions R      timings are the median of R runs            [3]
+  --seed S                                                          [1]
+  --json FILE          write the table as JSON
+
+Options of ekf-association:
+  --sizes a,b,...      map sizes                                    [100,500,1000,2000,5000]
+  --scans S            scans timed per size (medians)               [50]
   --seed S                                                          [1]
   --json FILE          write the table as JSON
 
@@ -227,6 +234,7 @@ struct RunResult {
   std::int64_t paired = 0, new_features = 0, rejected = 0;  // summed over the steps' stats
   std::optional<PairingScore> score;                        // sim with unknown ids only
   std::vector<double> step_seconds;
+  std::vector<double> step_association_seconds;
   std::vector<std::int64_t> step_features;
   std::vector<JoinEvent> joins;
   double stream_seconds = 0.0;  // one copy of a matrix the size of the final covariance
@@ -274,6 +282,7 @@ RunResult run_filter(const std::string& filter, const SlamConfig& config,
   result.peak_rss_growth_bytes = status_bytes("VmHWM") - rss_before;
   for (const StepStats& step : slam->stats().steps) {
     result.step_seconds.push_back(step.seconds);
+    result.step_association_seconds.push_back(step.association_seconds);
     result.step_features.push_back(step.num_features);
     result.worst_step_seconds = std::max(result.worst_step_seconds, step.seconds);
     result.mean_step_seconds += step.seconds;
@@ -428,8 +437,35 @@ void print_ekf_step_scaling(const RunResult& r) {
               last[last.size() / 2], last[last.size() / 2] / r.stream_seconds);
 }
 
+// The EKF's association cost per step against map size (unknown ids only): median per bin of
+// n over the whole run; flat (exponent near 0) when the candidate search is local.
+void print_association_scaling(const RunResult& r) {
+  if (r.filter != "ekf" || !r.score || r.step_seconds.size() < 40 || r.features < 100) return;
+  std::map<std::int64_t, std::vector<double>> bins;
+  const std::int64_t bin_width = std::max<std::int64_t>(1, r.features / 10);
+  for (std::size_t k = 0; k < r.step_association_seconds.size(); ++k) {
+    if (r.step_association_seconds[k] > 0.0) {
+      bins[r.step_features[k] / bin_width].push_back(r.step_association_seconds[k]);
+    }
+  }
+  std::vector<double> n, t;
+  for (auto& [bin, times] : bins) {
+    std::nth_element(times.begin(), times.begin() + static_cast<std::ptrdiff_t>(times.size() / 2), times.end());
+    n.push_back(static_cast<double>((bin + 0.5) * bin_width));
+    t.push_back(times[times.size() / 2]);
+  }
+  if (n.size() < 3) return;
+  std::printf("       EKF association per step ~ n^%.2f (median per bin, n from %lld to %lld): %.1f us at the "
+              "first bin, %.1f us at the last\n",
+              fitted_exponent(n, t), static_cast<long long>(n.front()), static_cast<long long>(n.back()),
+              t.front() * 1e6, t.back() * 1e6);
+}
+
 void print_ratios(const std::vector<RunResult>& results) {
-  for (const RunResult& r : results) print_ekf_step_scaling(r);
+  for (const RunResult& r : results) {
+    print_ekf_step_scaling(r);
+    print_association_scaling(r);
+  }
   if (results.size() != 2) return;
   std::printf("  EKF/D&C total time ratio %.1f, worst-step ratio %.1f\n",
               results[0].total_seconds / results[1].total_seconds,
@@ -473,6 +509,10 @@ void write_json(const std::string& path, const std::string& command, const Args&
       out << ",\n     \"step_seconds\": [";
       for (std::size_t k = 0; k < result.step_seconds.size(); ++k) {
         out << (k ? "," : "") << result.step_seconds[k];
+      }
+      out << "],\n     \"step_association_seconds\": [";
+      for (std::size_t k = 0; k < result.step_association_seconds.size(); ++k) {
+        out << (k ? "," : "") << result.step_association_seconds[k];
       }
       out << "],\n     \"step_features\": [";
       for (std::size_t k = 0; k < result.step_features.size(); ++k) {
@@ -640,6 +680,45 @@ int command_association(const Args& args) {
   return 0;
 }
 
+int command_ekf_association(const Args& args) {
+  std::vector<Eigen::Index> sizes;
+  for (long size : number_list(args, "sizes", "100,500,1000,2000,5000")) sizes.push_back(size);
+  const int scans = static_cast<int>(number(args, "scans", 50));
+  const auto seed = static_cast<std::uint64_t>(number(args, "seed", 1));
+  std::printf("ekf-association: EKF data association (jcbb) per scan against map size, fixed uncertainty; "
+              "median of %d scans\n", scans);
+  std::printf("  %6s %12s %12s | %13s %17s | %15s\n", "n", "measurements", "candidates", "associate s",
+              "per measurement", "map_updated s");
+  const auto rows = benchmark_ekf_association(sizes, scans, seed);
+  std::vector<double> n, associate, refresh;
+  for (const auto& row : rows) {
+    std::printf("  %6lld %12.1f %12.1f | %13.6f %15.2f us | %15.6f\n", static_cast<long long>(row.features),
+                row.measurements, row.candidates, row.seconds_associate,
+                1e6 * row.seconds_associate / row.measurements, row.seconds_map_updated);
+    n.push_back(static_cast<double>(row.features));
+    associate.push_back(row.seconds_associate);
+    refresh.push_back(row.seconds_map_updated);
+  }
+  if (rows.size() >= 2) {
+    std::printf("  fitted exponents of time vs n: associate %.2f, map_updated %.2f\n",
+                fitted_exponent(n, associate), fitted_exponent(n, refresh));
+  }
+  if (args.count("json")) {
+    std::ofstream out(args.at("json"));
+    if (!out) throw InvalidArgument("dcslam_bench: cannot write --json file '" + args.at("json") + "'");
+    write_args(out, "ekf-association", args);
+    out << "  \"rows\": [\n";
+    for (std::size_t k = 0; k < rows.size(); ++k) {
+      out << "    {\"features\": " << rows[k].features << ", \"measurements\": " << rows[k].measurements
+          << ", \"candidates\": " << rows[k].candidates << ", \"seconds_associate\": "
+          << rows[k].seconds_associate << ", \"seconds_map_updated\": " << rows[k].seconds_map_updated << "}"
+          << (k + 1 == rows.size() ? "\n" : ",\n");
+    }
+    out << "  ]\n}\n";
+  }
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -661,6 +740,7 @@ int main(int argc, char** argv) {
     if (command == "scaling") return command_scaling(args);
     if (command == "vp") return command_vp(args);
     if (command == "association") return command_association(args);
+    if (command == "ekf-association") return command_ekf_association(args);
     std::cerr << "dcslam_bench: unknown command '" << command << "'\n" << kUsage;
     return 2;
   } catch (const std::exception& error) {

@@ -27,6 +27,8 @@ for t in straight loop lawn_mowing snail; do
   run "assoc_$t" sim --trajectory "$t" --steps 600 --association jcbb --clutter 0.1 --filter both
 done
 run assoc_nn_loop sim --trajectory loop --steps 600 --association nn --clutter 0.1 --filter ekf
+# The EKF's association cost per step as the map grows to ~5,000 features (~1 min).
+run assoc_scaling_loop sim --trajectory loop --steps 1500 --association jcbb --clutter 0.1 --filter ekf
 # Where NN fails: 3x the odometry noise.
 for a in nn jcbb; do
   run "assoc_${a}_loop_noise3" sim --trajectory loop --steps 600 --association "$a" --clutter 0.1 \
@@ -38,6 +40,7 @@ for t in loop lawn_mowing; do
     --gate 0.999 --unexplained-density 0.02 --filter both
 done
 run association association
+run ekf_association ekf-association
 # Real data (issue 7).
 run vp vp --filter both
 run isam isam tests/data/isam_victoria_park.txt.gz --filter both

@@ -155,6 +155,8 @@ void define_slam_filter(py::module_& m) {
                                out["paired"] = step_column(stats, &StepStats::paired);
                                out["new_features"] = step_column(stats, &StepStats::new_features);
                                out["rejected"] = step_column(stats, &StepStats::rejected);
+                               out["association_seconds"] =
+                                   step_column(stats, &StepStats::association_seconds);
                                out["counters"] = py::cast(stats.counters);
                                return out;
                              })

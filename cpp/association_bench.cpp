@@ -3,13 +3,17 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <map>
 #include <random>
+#include <string>
 
 #include <Eigen/Cholesky>
 
 #include "dcslam/chi_square.hpp"
 #include "dcslam/errors.hpp"
+#include "dcslam/ekf_association.hpp"
 #include "dcslam/join_association.hpp"
+#include "dcslam/observation.hpp"
 
 namespace dcslam {
 
@@ -73,6 +77,11 @@ BenchMaps make_maps(Index half, Index overlap, std::mt19937_64& rng) {
   return maps;
 }
 
+double median(std::vector<double> values) {
+  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2), values.end());
+  return values[values.size() / 2];
+}
+
 template <typename Work>
 double median_seconds(int repetitions, Work work) {
   std::vector<double> seconds;
@@ -81,8 +90,7 @@ double median_seconds(int repetitions, Work work) {
     work();
     seconds.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   }
-  std::nth_element(seconds.begin(), seconds.begin() + repetitions / 2, seconds.end());
-  return seconds[static_cast<std::size_t>(repetitions / 2)];
+  return median(std::move(seconds));
 }
 
 int count_wrong(const JoinAssociationResult& result, const BenchMaps& maps) {
@@ -111,6 +119,73 @@ Index all_pairs_compatible(const JoinFrame& frame, double gate) {
 }
 
 }  // namespace
+
+std::vector<EkfAssociationBenchRow> benchmark_ekf_association(const std::vector<Index>& features,
+                                                              int scans, std::uint64_t seed) {
+  if (scans < 1) throw InvalidArgument("benchmark_ekf_association: scans must be >= 1");
+  std::vector<EkfAssociationBenchRow> rows;
+  const Mat2 R = Vec2(0.05 * 0.05, 0.005 * 0.005).asDiagonal();
+  SlamConfig config;
+  config.association = Association::Jcbb;
+  for (const Index n : features) {
+    if (n < 5 * kLandmarksPerColumn) {
+      throw InvalidArgument("benchmark_ekf_association: sizes must be >= " +
+                            std::to_string(5 * kLandmarksPerColumn));
+    }
+    std::mt19937_64 rng(seed);
+    std::normal_distribution<double> normal;
+    std::vector<Vec2> landmarks;
+    for (Index k = 0; k < n; ++k) landmarks.push_back(landmark(k, rng));
+    GaussianMap map = map_with_features(n);
+    map.P().topLeftCorner<3, 3>() = kRobotSigma.cwiseAbs2().asDiagonal();
+    for (Index k = 0; k < n; ++k) {
+      map.x().segment<2>(GaussianMap::feature_offset(k)) =
+          landmarks[static_cast<std::size_t>(k)] + kFeatureSigma * Vec2(normal(rng), normal(rng));
+    }
+    EkfAssociation association(config);
+    for (Index k = 0; k < n; ++k) association.feature_added(map, k);
+    const double length = kSpacing * static_cast<double>(n / kLandmarksPerColumn);
+    // The sensor's reach fits inside the smallest map, so every size sees the same scans.
+    const double reach = 3.5;
+    std::uniform_real_distribution<double> along(reach, length - reach), heading(-M_PI, M_PI);
+    std::vector<double> associate_seconds, refresh_seconds;
+    EkfAssociationBenchRow row;
+    row.features = n;
+    std::vector<Index> pairing;
+    std::vector<int> nearby;
+    std::map<std::string, double> counters;
+    for (int s = 0; s < scans; ++s) {
+      const Vec3 robot_true(along(rng), 0.5 * kSpacing * kLandmarksPerColumn, heading(rng));
+      map.x().head<3>() = robot_true + kRobotSigma.cwiseProduct(Vec3(normal(rng), normal(rng), normal(rng)));
+      std::vector<Vec2> measured;
+      for (const Vec2& l : landmarks) {
+        if ((l - robot_true.head<2>()).norm() > reach) continue;
+        measured.push_back(observe(ObservationModel::RangeBearing, Vec3::Zero(), robot_true, l) +
+                           Vec2(0.05 * normal(rng), 0.005 * normal(rng)));
+      }
+      MeasurementMatrix z(static_cast<Index>(measured.size()), 2);
+      for (std::size_t i = 0; i < measured.size(); ++i) z.row(static_cast<Index>(i)) = measured[i].transpose();
+      const std::vector<Mat2> noise{R};
+      for (Index i = 0; i < z.rows(); ++i) {
+        association.candidates(map, z.row(i).transpose(), R, nearby);
+        row.candidates += static_cast<double>(nearby.size());
+      }
+      row.measurements += static_cast<double>(z.rows());
+      auto start = std::chrono::steady_clock::now();
+      association.associate(map, z, noise, pairing, counters);
+      associate_seconds.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+      start = std::chrono::steady_clock::now();
+      association.map_updated(map);
+      refresh_seconds.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+    }
+    row.measurements /= scans;
+    row.candidates /= scans;
+    row.seconds_associate = median(associate_seconds);
+    row.seconds_map_updated = median(refresh_seconds);
+    rows.push_back(row);
+  }
+  return rows;
+}
 
 double fitted_exponent(const std::vector<double>& x, const std::vector<double>& y) {
   if (x.size() != y.size() || x.size() < 2) {

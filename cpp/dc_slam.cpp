@@ -139,6 +139,7 @@ std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::ve
   step.paired += local_step.paired;
   step.new_features += local_step.new_features;
   step.rejected += local_step.rejected;
+  step.association_seconds += local_step.association_seconds;
   if (local_->map().num_features() >= config_.local_map_features) close_local_map();
   if (config_.amortize && !config_.threaded_joins) run_amortized_budget();
   end_step(seconds_since(start));

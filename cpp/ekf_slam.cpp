@@ -120,7 +120,10 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
         return step_ - track.last_seen_step > config_.tentative_window &&
                track.first_seen_step > keep_until_step_;
       });
+  const auto association_start = Clock::now();
   associate(z, R, landmark_ids);
+  const double association_seconds =
+      std::chrono::duration<double>(Clock::now() - association_start).count();
   update_paired(z, R);
   if (association_ && !paired_measurements_.empty()) association_->map_updated(map_);
 
@@ -128,6 +131,7 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
   std::vector<std::int64_t> assigned(m, -1);
   StepStats& step = current_step();
   step.measurements += static_cast<int>(m);
+  step.association_seconds += association_seconds;
   for (std::size_t i = 0; i < m; ++i) {
     const Index decision = pairing_[i];
     if (decision >= 0) {

@@ -42,6 +42,22 @@ AssociationBenchResult benchmark_join_association(const std::vector<Eigen::Index
                                                   int repetitions = 3,
                                                   std::uint64_t seed = 1);
 
+// The EKF's data association per scan against map size: for each n, a map of n features on
+// the same jittered grid (fixed uncertainty: robot 0.1 m / 0.002 rad, features 0.05 m), and
+// `scans` range-bearing scans of every landmark within 3.5 m of a robot placed at random along
+// the map (the reach fits in the smallest map, n >= 100, so every size sees the same scans). Timed: EkfAssociation::associate ("jcbb"), i.e. candidate search through the
+// spatial hash, gates and JCBB; and, apart, map_updated(), the O(n) refresh of the hash after
+// an update. Medians over the scans. Memory: one dense covariance, (2n + 3)^2 doubles.
+struct EkfAssociationBenchRow {
+  Eigen::Index features = 0;
+  double measurements = 0.0;      // per scan, mean
+  double candidates = 0.0;        // features returned by the hash per scan, mean
+  double seconds_associate = 0.0;
+  double seconds_map_updated = 0.0;
+};
+std::vector<EkfAssociationBenchRow> benchmark_ekf_association(const std::vector<Eigen::Index>& features,
+                                                              int scans = 50, std::uint64_t seed = 1);
+
 // Least-squares slope of log(y) against log(x); InvalidArgument unless there are two or
 // more points, all positive, with distinct x.
 double fitted_exponent(const std::vector<double>& x, const std::vector<double>& y);

@@ -37,6 +37,7 @@ struct StepStats {
   int paired = 0;             // measurements paired with an existing feature
   int new_features = 0;       // measurements that started a feature
   int rejected = 0;           // measurements rejected as spurious (id -1)
+  double association_seconds = 0.0;  // part of `seconds` spent in data association
 };
 
 struct RunStats {

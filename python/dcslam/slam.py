@@ -46,6 +46,8 @@ class SlamStats:
         paired: measurements paired with an existing feature.
         new_features: measurements that started a feature.
         rejected: measurements rejected (id -1).
+        association_seconds: part of each step's time spent in data association (candidate
+            search, gates, NN/JCBB; inside the local map for D&C; 0 in "known" mode).
         counters: named totals, e.g. ``"predicts"``, ``"updates"`` (filters may add more).
     """
 
@@ -55,6 +57,7 @@ class SlamStats:
     paired: np.ndarray
     new_features: np.ndarray
     rejected: np.ndarray
+    association_seconds: np.ndarray
     counters: Dict[str, float]
 
     @property

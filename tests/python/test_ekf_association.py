@@ -136,6 +136,10 @@ def test_known_mode_never_removes_features_and_counts_jcbb_work():
     jcbb = dcslam.EkfSlam(config("jcbb"))
     jcbb.run(scenario.steps)
     assert jcbb.stats.counters["jcbb_nodes"] > 0 and jcbb.stats.counters["jcbb_bound_hits"] == 0
+    # Association time is part of each step's time, measured whenever there is a scan.
+    stats = jcbb.stats
+    assert np.all(stats.association_seconds <= stats.step_seconds)
+    assert stats.association_seconds[stats.measurements > 0].min() > 0
 
 
 def test_min_sightings_one_turns_the_policy_off():
