@@ -411,23 +411,30 @@ void print_result(const RunResult& r) {
   }
 }
 
-// The EKF's per-step cost against map size: the fitted exponent of median step time in
-// bins of n (over the second half of the map's growth, where the O(n^2) update dominates),
-// and the last steps' time against one stream of P of the final size.
-void print_ekf_step_scaling(const RunResult& r) {
-  if (r.filter != "ekf" || r.step_seconds.size() < 40 || r.features < 100) return;
+// Medians of `values` in bins of map size `bin_width` wide, over the steps `use` accepts:
+// bin centres in `n`, medians in `t`.
+template <typename Use>
+void binned_medians(const RunResult& r, const std::vector<double>& values, std::int64_t bin_width,
+                    Use use, std::vector<double>& n, std::vector<double>& t) {
   std::map<std::int64_t, std::vector<double>> bins;
-  const std::int64_t bin_width = std::max<std::int64_t>(1, r.features / 20);
-  for (std::size_t k = 0; k < r.step_seconds.size(); ++k) {
-    if (2 * r.step_features[k] < r.features) continue;
-    bins[r.step_features[k] / bin_width].push_back(r.step_seconds[k]);
+  for (std::size_t k = 0; k < values.size(); ++k) {
+    if (use(k)) bins[r.step_features[k] / bin_width].push_back(values[k]);
   }
-  std::vector<double> n, t;
   for (auto& [bin, times] : bins) {
     std::nth_element(times.begin(), times.begin() + static_cast<std::ptrdiff_t>(times.size() / 2), times.end());
     n.push_back(static_cast<double>((bin + 0.5) * bin_width));
     t.push_back(times[times.size() / 2]);
   }
+}
+
+// The EKF's per-step cost against map size: the fitted exponent of median step time in
+// bins of n (over the second half of the map's growth, where the O(n^2) update dominates),
+// and the last steps' time against one stream of P of the final size.
+void print_ekf_step_scaling(const RunResult& r) {
+  if (r.filter != "ekf" || r.step_seconds.size() < 40 || r.features < 100) return;
+  std::vector<double> n, t;
+  binned_medians(r, r.step_seconds, std::max<std::int64_t>(1, r.features / 20),
+                 [&r](std::size_t k) { return 2 * r.step_features[k] >= r.features; }, n, t);
   if (n.size() < 3) return;
   const std::size_t tail = std::max<std::size_t>(1, r.step_seconds.size() / 20);
   std::vector<double> last(r.step_seconds.end() - static_cast<std::ptrdiff_t>(tail), r.step_seconds.end());
@@ -441,19 +448,9 @@ void print_ekf_step_scaling(const RunResult& r) {
 // n over the whole run; flat (exponent near 0) when the candidate search is local.
 void print_association_scaling(const RunResult& r) {
   if (r.filter != "ekf" || !r.score || r.step_seconds.size() < 40 || r.features < 100) return;
-  std::map<std::int64_t, std::vector<double>> bins;
-  const std::int64_t bin_width = std::max<std::int64_t>(1, r.features / 10);
-  for (std::size_t k = 0; k < r.step_association_seconds.size(); ++k) {
-    if (r.step_association_seconds[k] > 0.0) {
-      bins[r.step_features[k] / bin_width].push_back(r.step_association_seconds[k]);
-    }
-  }
   std::vector<double> n, t;
-  for (auto& [bin, times] : bins) {
-    std::nth_element(times.begin(), times.begin() + static_cast<std::ptrdiff_t>(times.size() / 2), times.end());
-    n.push_back(static_cast<double>((bin + 0.5) * bin_width));
-    t.push_back(times[times.size() / 2]);
-  }
+  binned_medians(r, r.step_association_seconds, std::max<std::int64_t>(1, r.features / 10),
+                 [&r](std::size_t k) { return r.step_association_seconds[k] > 0.0; }, n, t);
   if (n.size() < 3) return;
   std::printf("       EKF association per step ~ n^%.2f (median per bin, n from %lld to %lld): %.1f us at the "
               "first bin, %.1f us at the last\n",
