@@ -2,7 +2,6 @@
 // brute-force gate over every feature, and exhaustive enumeration of JCBB hypotheses.
 #include <algorithm>
 #include <cmath>
-#include <functional>
 #include <map>
 #include <random>
 #include <set>
@@ -17,6 +16,7 @@
 #include "dcslam/ekf_association.hpp"
 #include "dcslam/ekf_slam.hpp"
 #include "dcslam/observation.hpp"
+#include "admissible_hypotheses.hpp"
 
 namespace dcslam {
 namespace {
@@ -178,35 +178,22 @@ TEST_P(EkfAssociationTest, CandidateSearchNeverMissesAGatePassingFeature) {
   EXPECT_LT(candidates_total, features_total / 5);  // and the search is a search, not a scan
 }
 
-// Every admissible hypothesis (each measurement: star or a gate-passing feature, features
-// once, every prefix jointly compatible), best = most pairings then lowest D^2.
+// The best admissible hypothesis (testing::for_each_admissible_hypothesis): most pairings,
+// then lowest D^2.
 std::vector<int> brute_force_jcbb(const CandidateLists& candidates, const PairingModel& model, double confidence) {
-  const int m = static_cast<int>(candidates.size());
-  std::vector<int> current(static_cast<std::size_t>(m), kStar), best = current;
+  std::vector<int> best(candidates.size(), kStar);
   int best_pairings = 0;
   double best_distance = 0.0;
-  std::function<void(int, int)> visit = [&](int i, int pairings) {
-    if (pairings > 0) {
-      std::vector<int> prefix = current;
-      for (int k = i; k < m; ++k) prefix[static_cast<std::size_t>(k)] = kStar;
-      const double distance = joint_distance_sq(prefix, model);
-      if (!(distance <= chi2_quantile(2 * pairings, confidence))) return;
-      if (i == m && (pairings > best_pairings || (pairings == best_pairings && distance < best_distance))) {
-        best = prefix;
-        best_pairings = pairings;
-        best_distance = distance;
-      }
-    }
-    if (i == m) return;
-    for (int feature : candidates[static_cast<std::size_t>(i)]) {
-      if (std::find(current.begin(), current.begin() + i, feature) != current.begin() + i) continue;
-      current[static_cast<std::size_t>(i)] = feature;
-      visit(i + 1, pairings + 1);
-    }
-    current[static_cast<std::size_t>(i)] = kStar;
-    visit(i + 1, pairings);
-  };
-  visit(0, 0);
+  testing::for_each_admissible_hypothesis(
+      candidates, model, confidence, true,
+      [&](const std::vector<Pairing>& hypothesis, const std::vector<int>& feature_of, double distance) {
+        const int pairings = static_cast<int>(hypothesis.size());
+        if (pairings > best_pairings || (pairings == best_pairings && pairings > 0 && distance < best_distance)) {
+          best = feature_of;
+          best_pairings = pairings;
+          best_distance = distance;
+        }
+      });
   return best;
 }
 
@@ -264,36 +251,23 @@ TEST_P(EkfAssociationTest, JcbbEqualsExhaustiveEnumerationOnCrowdedScans) {
 // ln N(nu_H; 0, S_H) - sum_{i in H} log_lambda[i] computed from the whole stacked S_H.
 std::vector<int> brute_force_likelihood(const CandidateLists& candidates, const PairingModel& model,
                                         double confidence, const std::vector<double>& log_lambda) {
-  const int m = static_cast<int>(candidates.size());
-  std::vector<int> current(static_cast<std::size_t>(m), kStar), best = current;
+  std::vector<int> best(candidates.size(), kStar);
   double best_score = 0.0;  // the empty hypothesis
-  std::function<void(int, int)> visit = [&](int i, int pairings) {
-    if (pairings > 0) {
-      std::vector<int> prefix = current;
-      for (int k = i; k < m; ++k) prefix[static_cast<std::size_t>(k)] = kStar;
-      const StackedHypothesis stacked = stack_hypothesis(prefix, model);
-      const Eigen::LDLT<MatrixXd> ldlt(stacked.covariance);
-      const double distance = stacked.innovation.dot(ldlt.solve(stacked.innovation));
-      if (!(distance <= chi2_quantile(2 * pairings, confidence))) return;
-      if (i == m) {
+  testing::for_each_admissible_hypothesis(
+      candidates, model, confidence, true,
+      [&](const std::vector<Pairing>& hypothesis, const std::vector<int>& feature_of, double) {
+        if (hypothesis.empty()) return;
+        const StackedHypothesis stacked = stack_hypothesis(feature_of, model);
+        const Eigen::LDLT<MatrixXd> ldlt(stacked.covariance);
+        const double distance = stacked.innovation.dot(ldlt.solve(stacked.innovation));
+        const auto pairings = static_cast<double>(hypothesis.size());
         double score = -pairings * std::log(2.0 * M_PI) - 0.5 * ldlt.vectorD().array().log().sum() - 0.5 * distance;
         for (const Pairing& p : stacked.pairings) score -= log_lambda[static_cast<std::size_t>(p.measurement)];
         if (score > best_score) {
-          best = prefix;
+          best = feature_of;
           best_score = score;
         }
-      }
-    }
-    if (i == m) return;
-    for (int feature : candidates[static_cast<std::size_t>(i)]) {
-      if (std::find(current.begin(), current.begin() + i, feature) != current.begin() + i) continue;
-      current[static_cast<std::size_t>(i)] = feature;
-      visit(i + 1, pairings + 1);
-    }
-    current[static_cast<std::size_t>(i)] = kStar;
-    visit(i + 1, pairings);
-  };
-  visit(0, 0);
+      });
   return best;
 }
 

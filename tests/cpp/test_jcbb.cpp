@@ -11,9 +11,12 @@
 #include "dcslam/chi_square.hpp"
 #include "dcslam/errors.hpp"
 #include "dcslam/jcbb.hpp"
+#include "admissible_hypotheses.hpp"
 
 namespace dcslam {
 namespace {
+
+using testing::direct_distance_sq;
 
 // A linear-Gaussian scan: state x = [t (2); f_0 (2); ...] with estimate 0 and covariance P,
 // measurement i observes A_i (f_j - t) with noise R_i. The true state is a draw from N(0, P),
@@ -99,20 +102,6 @@ Problem random_problem(std::mt19937_64& rng, int max_measurements) {
   return problem;
 }
 
-// Joint distance of pairings computed from scratch (stacked nu, full S, LDLT).
-double direct_distance_sq(const std::vector<Pairing>& pairings, const PairingModel& model) {
-  const auto k = static_cast<Eigen::Index>(pairings.size());
-  Eigen::VectorXd nu(2 * k);
-  Eigen::MatrixXd S(2 * k, 2 * k);
-  for (Eigen::Index a = 0; a < k; ++a) {
-    nu.segment<2>(2 * a) = model.innovation(pairings[a]);
-    for (Eigen::Index b = 0; b < k; ++b) {
-      S.block<2, 2>(2 * a, 2 * b) = model.covariance(pairings[a], pairings[b]);
-    }
-  }
-  return nu.dot(S.ldlt().solve(nu));
-}
-
 struct Exhaustive {
   int pairings = -1;
   double distance_sq = 0.0;
@@ -120,52 +109,26 @@ struct Exhaustive {
   std::vector<int> feature_of;
 };
 
-// Enumerates every assignment (candidate or star, features once) whose prefixes are all
-// jointly compatible, each distance computed directly.
-void enumerate(const CandidateLists& candidates, const PairingModel& model, double confidence,
-               bool allow_star, std::size_t measurement, std::vector<Pairing>& hypothesis,
-               std::vector<int>& feature_of, double distance_sq, Exhaustive& best) {
-  if (measurement == candidates.size()) {
-    const int pairings = static_cast<int>(hypothesis.size());
-    if (pairings > best.pairings) {
-      best = Exhaustive{pairings, distance_sq, std::numeric_limits<double>::infinity(), feature_of};
-    } else if (pairings == best.pairings) {
-      if (distance_sq < best.distance_sq) {
-        best.runner_up_distance_sq = best.distance_sq;
-        best.distance_sq = distance_sq;
-        best.feature_of = feature_of;
-      } else {
-        best.runner_up_distance_sq = std::min(best.runner_up_distance_sq, distance_sq);
-      }
-    }
-    return;
-  }
-  for (int feature : candidates[measurement]) {
-    const bool used = std::any_of(hypothesis.begin(), hypothesis.end(),
-                                  [&](const Pairing& p) { return p.feature == feature; });
-    if (used) continue;
-    hypothesis.push_back(Pairing{static_cast<int>(measurement), feature});
-    const double extended = direct_distance_sq(hypothesis, model);
-    if (extended <= chi2_quantile(2 * static_cast<int>(hypothesis.size()), confidence)) {
-      feature_of[measurement] = feature;
-      enumerate(candidates, model, confidence, allow_star, measurement + 1, hypothesis, feature_of,
-                extended, best);
-      feature_of[measurement] = kStar;
-    }
-    hypothesis.pop_back();
-  }
-  if (allow_star) {
-    enumerate(candidates, model, confidence, allow_star, measurement + 1, hypothesis, feature_of,
-              distance_sq, best);
-  }
-}
-
+// Best of every admissible assignment: most pairings, then lowest D^2 (runner-up kept to
+// tell a unique best from a tie).
 Exhaustive exhaustive(const Problem& problem, double confidence, bool allow_star) {
   Exhaustive best;
-  std::vector<Pairing> hypothesis;
-  std::vector<int> feature_of(problem.candidates.size(), kStar);
-  enumerate(problem.candidates, problem.model, confidence, allow_star, 0, hypothesis, feature_of,
-            0.0, best);
+  testing::for_each_admissible_hypothesis(
+      problem.candidates, problem.model, confidence, allow_star,
+      [&best](const std::vector<Pairing>& hypothesis, const std::vector<int>& feature_of, double distance_sq) {
+        const int pairings = static_cast<int>(hypothesis.size());
+        if (pairings > best.pairings) {
+          best = Exhaustive{pairings, distance_sq, std::numeric_limits<double>::infinity(), feature_of};
+        } else if (pairings == best.pairings) {
+          if (distance_sq < best.distance_sq) {
+            best.runner_up_distance_sq = best.distance_sq;
+            best.distance_sq = distance_sq;
+            best.feature_of = feature_of;
+          } else {
+            best.runner_up_distance_sq = std::min(best.runner_up_distance_sq, distance_sq);
+          }
+        }
+      });
   return best;
 }
 
@@ -243,41 +206,24 @@ struct LikelihoodBest {
   std::vector<int> feature_of;
 };
 
-// Every admissible assignment (as enumerate()), ranked by the directly computed score.
-void enumerate_likelihood(const Problem& problem, const JcbbLikelihood& likelihood, double confidence,
-                          bool allow_star, std::size_t measurement, std::vector<Pairing>& hypothesis,
-                          std::vector<int>& feature_of, LikelihoodBest& best) {
-  const CandidateLists& candidates = problem.candidates;
-  if (measurement == candidates.size()) {
-    const double score = direct_log_likelihood_ratio(hypothesis, problem.model, likelihood);
-    if (score > best.score) {
-      best.runner_up_score = best.score;
-      best.score = score;
-      best.distance_sq = hypothesis.empty() ? 0.0 : direct_distance_sq(hypothesis, problem.model);
-      best.feature_of = feature_of;
-    } else {
-      best.runner_up_score = std::max(best.runner_up_score, score);
-    }
-    return;
-  }
-  for (int feature : candidates[measurement]) {
-    const bool used = std::any_of(hypothesis.begin(), hypothesis.end(),
-                                  [&](const Pairing& p) { return p.feature == feature; });
-    if (used) continue;
-    hypothesis.push_back(Pairing{static_cast<int>(measurement), feature});
-    if (direct_distance_sq(hypothesis, problem.model) <=
-        chi2_quantile(2 * static_cast<int>(hypothesis.size()), confidence)) {
-      feature_of[measurement] = feature;
-      enumerate_likelihood(problem, likelihood, confidence, allow_star, measurement + 1, hypothesis,
-                           feature_of, best);
-      feature_of[measurement] = kStar;
-    }
-    hypothesis.pop_back();
-  }
-  if (allow_star) {
-    enumerate_likelihood(problem, likelihood, confidence, allow_star, measurement + 1, hypothesis,
-                         feature_of, best);
-  }
+// Every admissible assignment, ranked by the directly computed score.
+LikelihoodBest exhaustive_likelihood(const Problem& problem, const JcbbLikelihood& likelihood,
+                                     double confidence, bool allow_star) {
+  LikelihoodBest best;
+  testing::for_each_admissible_hypothesis(
+      problem.candidates, problem.model, confidence, allow_star,
+      [&](const std::vector<Pairing>& hypothesis, const std::vector<int>& feature_of, double distance_sq) {
+        const double score = direct_log_likelihood_ratio(hypothesis, problem.model, likelihood);
+        if (score > best.score) {
+          best.runner_up_score = best.score;
+          best.score = score;
+          best.distance_sq = distance_sq;
+          best.feature_of = feature_of;
+        } else {
+          best.runner_up_score = std::max(best.runner_up_score, score);
+        }
+      });
+  return best;
 }
 
 // Densities spread so that the criterion sometimes declines pairings "most pairings" takes;
@@ -304,11 +250,7 @@ void expect_likelihood_matches_exhaustive(bool allow_star, std::uint64_t seed) {
     const JcbbResult result = solver.solve(problem.candidates, problem.model, likelihood);
     ASSERT_FALSE(result.bound_hit);
     ASSERT_EQ(result.pairings, count_pairings(result.feature_of));
-    LikelihoodBest reference;
-    std::vector<Pairing> hypothesis;
-    std::vector<int> feature_of(problem.candidates.size(), kStar);
-    enumerate_likelihood(problem, likelihood, options.confidence, allow_star, 0, hypothesis, feature_of,
-                         reference);
+    const LikelihoodBest reference = exhaustive_likelihood(problem, likelihood, options.confidence, allow_star);
     if (reference.feature_of.empty()) {  // JCBB*: nothing pairs every measurement
       ASSERT_EQ(result.pairings, 0) << "trial " << trial;
       continue;
