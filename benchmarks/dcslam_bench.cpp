@@ -60,6 +60,7 @@ Options of sim, scaling, vp and isam:
   --joins immediate|amortized|threaded                              [amortized]
   --local-map-features P                                           [30]
   --join-iterations K  linearisation points per join (1: one-shot)  [10]
+  --join-feature-sigma S  SlamConfig.join_feature_sigma [m]   [0; vp: 0.1]
   --seed S                                                          [0]
   --json FILE          write per-step times and totals as JSON
 
@@ -300,20 +301,6 @@ RunResult run_filter(const std::string& filter, const SlamConfig& config,
   return result;
 }
 
-// The options every filter run takes from the command line, whatever the data.
-void apply_run_options(const Args& args, SlamConfig& config) {
-  config.local_map_features = static_cast<int>(number(args, "local-map-features", 30));
-  config.join_iterations = static_cast<int>(number(args, "join-iterations", 10));
-  const std::string joins = get(args, "joins", "amortized");
-  if (joins != "immediate" && joins != "amortized" && joins != "threaded") {
-    throw InvalidArgument("dcslam_bench: --joins must be immediate, amortized or threaded");
-  }
-  config.amortize = joins == "amortized";
-  config.threaded_joins = joins == "threaded";
-  config.seed = static_cast<std::uint64_t>(number(args, "seed", 0));
-  config.validate();
-}
-
 double real_number(const Args& args, const std::string& key, double fallback) {
   const std::string text = get(args, key, "");
   if (text.empty()) return fallback;
@@ -324,6 +311,21 @@ double real_number(const Args& args, const std::string& key, double fallback) {
   } catch (const std::exception&) {
   }
   throw InvalidArgument("dcslam_bench: --" + key + " expects a number, got '" + text + "'");
+}
+
+// The options every filter run takes from the command line, whatever the data.
+void apply_run_options(const Args& args, SlamConfig& config) {
+  config.local_map_features = static_cast<int>(number(args, "local-map-features", 30));
+  config.join_iterations = static_cast<int>(number(args, "join-iterations", 10));
+  config.join_feature_sigma = real_number(args, "join-feature-sigma", config.join_feature_sigma);
+  const std::string joins = get(args, "joins", "amortized");
+  if (joins != "immediate" && joins != "amortized" && joins != "threaded") {
+    throw InvalidArgument("dcslam_bench: --joins must be immediate, amortized or threaded");
+  }
+  config.amortize = joins == "amortized";
+  config.threaded_joins = joins == "threaded";
+  config.seed = static_cast<std::uint64_t>(number(args, "seed", 0));
+  config.validate();
 }
 
 SlamConfig simulation_config(const Args& args) {
@@ -346,6 +348,7 @@ SlamConfig victoria_park_config(const Args& args, const VictoriaParkData& data) 
   config.association = Association::Jcbb;
   config.gate_confidence = 0.99;
   config.join_association = JoinAssociation::Rjc;
+  config.join_feature_sigma = 0.1;
   apply_run_options(args, config);
   return config;
 }
@@ -611,11 +614,12 @@ int command_vp(const Args& args) {
               options.sigma_bearing, options.odometry.sigma_speed, options.odometry.sigma_steering,
               options.odometry.floor_sigma_xy, options.odometry.floor_sigma_phi);
   std::printf("  config: range_bearing, sensor offset (%g, %g, %g), association %s, join %s, gate %g, "
-              "local maps of %d features, min_sightings %d, tentative_window %d, join_iterations %d\n",
+              "local maps of %d features, min_sightings %d, tentative_window %d, join_iterations %d, "
+              "join_feature_sigma %g m\n",
               config.sensor_offset.x(), config.sensor_offset.y(), config.sensor_offset.z(),
               to_string(config.association), to_string(config.join_association), config.gate_confidence,
               config.local_map_features, config.min_sightings, config.tentative_window,
-              config.join_iterations);
+              config.join_iterations, config.join_feature_sigma);
   return report("vp", args, static_cast<int>(steps.size()), run_filters(args, config, steps, nullptr));
 }
 

@@ -68,6 +68,8 @@ void SlamConfig::validate() const {
           "rjc_p_fail: must lie in (0, 1), got " + std::to_string(rjc_p_fail));
   require(join_iterations >= 1,
           "join_iterations: must be >= 1, got " + std::to_string(join_iterations));
+  require(std::isfinite(join_feature_sigma) && join_feature_sigma >= 0.0,
+          "join_feature_sigma: must be finite and >= 0, got " + std::to_string(join_feature_sigma));
 }
 
 }  // namespace dcslam

@@ -101,6 +101,7 @@ JoinOptions DCSlam::join_options(int index) const {
   options.rjc_p_good = config_.rjc_p_good;
   options.rjc_p_fail = config_.rjc_p_fail;
   options.max_iterations = config_.join_iterations;
+  options.feature_sigma = config_.join_feature_sigma;
   // One reproducible stream per join, whatever the order in which joins are run.
   options.seed = config_.seed ^ (0x9E3779B97F4A7C15ULL * static_cast<std::uint64_t>(index + 1));
   return options;

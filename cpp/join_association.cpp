@@ -37,7 +37,10 @@ Vec2 JoinPairingModel::innovation(const Pairing& p) const {
 }
 
 Mat2 JoinPairingModel::covariance(const Pairing& a, const Pairing& b) const {
-  return frame_.constraint_covariance(a.feature, a.measurement, b.feature, b.measurement);
+  Mat2 covariance = frame_.constraint_covariance(a.feature, a.measurement, b.feature, b.measurement);
+  const int shared = (a.feature == b.feature ? 1 : 0) + (a.measurement == b.measurement ? 1 : 0);
+  covariance.diagonal().array() += shared * feature_variance_;
+  return covariance;
 }
 
 JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options) {
@@ -48,21 +51,24 @@ JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& 
   if (n1 == 0 || n2 == 0) return result;
 
   // Candidate search radius: a pair (i, j) passes the gate only if |f'_j - f_i| <=
-  // sqrt(gate) * (sigma_i + sigma_j), with sigma the largest standard deviation of each.
+  // sqrt(gate) * (sigma_i + sigma_j), with sigma the largest standard deviation of each
+  // (feature_sigma included: sqrt(a^2 + s^2) <= a + s).
   const double pruning_confidence = candidate_confidence(options.gate_confidence);
   const double gate_radius = std::sqrt(chi2_quantile(2, pruning_confidence));
   double sigma_first = 0.0;
   for (Index i = 0; i < n1; ++i) sigma_first = std::max(sigma_first, largest_std(frame.first_first(i, i)));
+  sigma_first += options.feature_sigma;
   std::vector<double> sigma_second(static_cast<std::size_t>(n2));
   double typical_radius = 0.0;
   for (Index j = 0; j < n2; ++j) {
-    sigma_second[static_cast<std::size_t>(j)] = largest_std(frame.second_second(j, j));
+    sigma_second[static_cast<std::size_t>(j)] =
+        largest_std(frame.second_second(j, j)) + options.feature_sigma;
     typical_radius = std::max(typical_radius, gate_radius * (sigma_first + sigma_second[static_cast<std::size_t>(j)]));
   }
   SpatialHash hash(std::max(0.5, typical_radius));
   for (Index i = 0; i < n1; ++i) hash.insert(static_cast<int>(i), m1.feature(i));
 
-  const JoinPairingModel model(frame);
+  const JoinPairingModel model(frame, options.feature_sigma);
   CandidateLists candidates(static_cast<std::size_t>(n2));
   std::vector<int> nearby;
   for (Index j = 0; j < n2; ++j) {

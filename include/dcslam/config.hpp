@@ -44,6 +44,11 @@ struct SlamConfig {
   // D&C: linearisation points of each join's constraint update (iterated EKF; 1 = the
   // one-shot join linearised at the prior means).
   int join_iterations = 10;
+  // D&C joins' compatibility tests only: a per-feature position error (m) that repeated
+  // sightings do not average out (on real data, e.g. a trunk centre seen from different
+  // sides), added as join_feature_sigma^2 I to each feature of a tested pair. The update still
+  // imposes the pairs exactly. 0: the maps' covariances alone (exact in simulation).
+  double join_feature_sigma = 0.0;
   std::uint64_t seed = 0;
   bool amortize = true;
   // D&C: run joins on a background worker thread instead (the multi-core form of the

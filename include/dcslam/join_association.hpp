@@ -15,15 +15,19 @@
 namespace dcslam {
 
 // Measurement = feature j of the moved m2, feature = feature i of m1; the innovation of the
-// pairing is f'_j - f_i, whose covariance is P_ii + P_jj - P_ij - P_ji in the stacked map.
+// pairing is f'_j - f_i, whose covariance is P_ii + P_jj - P_ij - P_ji in the stacked map,
+// plus feature_sigma^2 I for each feature the two pairings share (each feature carries its
+// own independent error of that size: SlamConfig::join_feature_sigma).
 class JoinPairingModel : public PairingModel {
  public:
-  explicit JoinPairingModel(const JoinFrame& frame) : frame_(frame) {}
+  explicit JoinPairingModel(const JoinFrame& frame, double feature_sigma = 0.0)
+      : frame_(frame), feature_variance_(feature_sigma * feature_sigma) {}
   Vec2 innovation(const Pairing& p) const override;
   Mat2 covariance(const Pairing& a, const Pairing& b) const override;
 
  private:
   const JoinFrame& frame_;
+  double feature_variance_;
 };
 
 struct JoinAssociationResult {

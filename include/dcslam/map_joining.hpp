@@ -25,6 +25,7 @@ namespace dcslam {
 struct JoinOptions {
   JoinAssociation association = JoinAssociation::Known;
   double gate_confidence = 0.99;
+  double feature_sigma = 0.0;  // SlamConfig::join_feature_sigma
   int rjc_b = 4;
   double rjc_p_good = 0.8;
   double rjc_p_fail = 0.01;

@@ -55,6 +55,11 @@ class SlamConfig:
             The join re-linearises the move of the second map into the first's frame at the
             constrained estimate until it stops moving (an iterated EKF); 1 linearises once,
             at the prior means (docs/divide_and_conquer.md).
+        join_feature_sigma: D&C joins' compatibility tests only: a per-feature position
+            error in metres (>= 0) that repeated sightings do not average out, added as
+            ``join_feature_sigma**2 * I`` to each feature of a tested pair; the update still
+            imposes the pairs exactly. 0 (default): the maps' covariances alone. Victoria
+            Park's config sets it from the data (docs/victoria_park.md).
         seed: every random choice is reproducible from it.
         amortize: D&C spreads each join over the following steps (DESIGN.md §5).
         threaded_joins: D&C runs joins on a background thread while mapping goes on
@@ -75,6 +80,7 @@ class SlamConfig:
     rjc_p_good: float = 0.8
     rjc_p_fail: float = 0.01
     join_iterations: int = 10
+    join_feature_sigma: float = 0.0
     seed: int = 0
     amortize: bool = True
     threaded_joins: bool = False

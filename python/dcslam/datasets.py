@@ -132,7 +132,7 @@ class VictoriaPark:
         offset, JCBB inside local maps, RJC at joins. Keyword arguments override fields."""
         values = dict(observation="range_bearing", sensor_offset=self.sensor_offset,
                       association="jcbb", gate_confidence=0.99, local_map_features=30,
-                      join_association="rjc")
+                      join_association="rjc", join_feature_sigma=0.1)
         values.update(overrides)
         return SlamConfig(**values)
 

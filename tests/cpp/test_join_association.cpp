@@ -1,6 +1,7 @@
 #include <cmath>
 #include <random>
 
+#include <Eigen/Cholesky>
 #include <gtest/gtest.h>
 
 #include "dcslam/ekf_slam.hpp"
@@ -293,6 +294,52 @@ TEST(JoinAssociation, NearestNeighbourPairsWronglyWhereJointCompatibilityDoesNot
       // An overlap of 6 <= 3b is decided by JCBB with the star node, not by random tries.
       EXPECT_EQ(result.tries, 0);
     }
+  }
+}
+
+// Each landmark of m2 sits 0.15 m off its m1 estimate in its own direction (a trunk centre
+// seen from another side), while both maps claim 2 cm: the maps' covariances alone reject
+// the true pairs; join_feature_sigma = 0.15 accepts all of them, and only them.
+TEST(JoinAssociation, FeatureSigmaAcceptsPairsOffsetBeyondTheirCovariance) {
+  const std::vector<Vec2> landmarks = {{3, 0}, {5, 2}, {2, 4}, {6, -2}, {0, 3}, {4, 5},
+                                       {8, 1}, {7, 4}, {1, -3}, {9, -1}, {3, 7}, {6, 7},
+                                       {-2, 1}, {10, 3}, {5, -4}, {-1, 5}};
+  std::vector<Vec2> seen_again;
+  for (std::size_t k = 0; k < landmarks.size(); ++k) {
+    const double direction = 2.399963 * static_cast<double>(k);  // golden angle: all around
+    seen_again.push_back(landmarks[k] + 0.15 * Vec2(std::cos(direction), std::sin(direction)));
+  }
+  std::vector<std::int64_t> ids(landmarks.size());
+  for (std::size_t k = 0; k < ids.size(); ++k) ids[k] = static_cast<std::int64_t>(k);
+  const GaussianMap first = hand_built_map(Vec3::Zero(), 1e-6 * Mat3::Identity(), landmarks, ids, 0.02);
+  const GaussianMap second = hand_built_map(Vec3::Zero(), Mat3::Zero(), seen_again, ids, 0.02);
+  const JoinFrame frame(first, second);
+
+  // D^2 of one pair, from its definition: |nu|^2 / (sigma_1^2 + sigma_2^2 + 2 s^2) when the
+  // robot is (almost) certain and the covariances are isotropic.
+  const Pairing pairing{0, 0};
+  const double nu_sq = (seen_again[0] - landmarks[0]).squaredNorm();
+  for (double s : {0.0, 0.15}) {
+    const JoinPairingModel model(frame, s);
+    const Vec2 nu = model.innovation(pairing);
+    const double d2 = nu.dot(model.covariance(pairing, pairing).ldlt().solve(nu));
+    EXPECT_NEAR(d2, nu_sq / (2 * 0.02 * 0.02 + 2 * s * s + 1e-6), 1e-6 * d2);
+  }
+  // Two pairings that share a feature of m1 share its error: s^2 I; disjoint ones share none.
+  const JoinPairingModel inflated(frame, 0.15), plain(frame);
+  const Pairing shares_feature{1, 0}, disjoint{1, 1};
+  EXPECT_TRUE(inflated.covariance(pairing, shares_feature)
+                  .isApprox(plain.covariance(pairing, shares_feature) + 0.0225 * Mat2::Identity()));
+  EXPECT_TRUE(inflated.covariance(pairing, disjoint).isApprox(plain.covariance(pairing, disjoint)));
+
+  for (JoinAssociation association : {JoinAssociation::Rjc, JoinAssociation::Jcbb}) {
+    JoinOptions options = options_for(association);
+    const auto strict = associate_maps(frame, options);
+    EXPECT_LT(strict.pairs.size(), landmarks.size() / 2);
+    options.feature_sigma = 0.15;
+    const auto tolerant = associate_maps(frame, options);
+    EXPECT_EQ(tolerant.pairs.size(), landmarks.size());
+    EXPECT_EQ(count_wrong(tolerant.pairs, first, second), 0);
   }
 }
 

@@ -51,6 +51,9 @@ def test_unknown_options_are_refused_naming_the_field():
         dcslam.DCSlam(dcslam.SlamConfig(local_map_features=0))
     with pytest.raises(ValueError, match="join_iterations"):
         dcslam.DCSlam(dcslam.SlamConfig(join_iterations=0))
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="join_feature_sigma"):
+            dcslam.DCSlam(dcslam.SlamConfig(join_feature_sigma=bad))
 
 
 @pytest.mark.parametrize("join_iterations", [1, 3, 10])
