@@ -255,6 +255,11 @@ class DCSlam(SlamFilter):
     that holds it now, and the id of a tentative feature removed by the spurious-measurement
     policy to -1 (see :class:`EkfSlam`; a closed local map keeps its tentative features, and
     the join with the next map drops those no feature of it matches).
+
+    With ``cfg.keep_local_map_poses`` every join keeps the first map's robot (the pose where
+    the second map started) as a past pose, so :meth:`estimate` also returns the robot pose
+    at every local-map boundary with its full covariance (``Estimate.past_poses``,
+    ``past_pose_ids``, ``joint_covariance``; docs/divide_and_conquer.md).
     """
 
     def __init__(self, cfg: Optional[SlamConfig] = None):
