@@ -135,7 +135,11 @@ void define_slam_filter(py::module_& m) {
              out["robot"] = py::cast(estimate.robot);
              out["landmarks"] = py::cast(std::move(estimate.landmarks));
              out["landmark_ids"] = int64_array(std::move(estimate.landmark_ids));
-             out["covariance"] = py::cast(std::move(estimate.covariance));
+             out["past_poses"] = py::cast(std::move(estimate.past_poses));
+             out["past_pose_ids"] = int64_array(std::move(estimate.past_pose_ids));
+             // Moved into numpy without a copy; the Python wrapper views its leading block
+             // as the [robot, landmarks] covariance.
+             out["joint_covariance"] = py::cast(std::move(estimate.covariance));
              return out;
            })
       .def("pose", &SlamFilter::pose)

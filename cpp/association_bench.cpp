@@ -34,7 +34,7 @@ Vec2 landmark(Index k, std::mt19937_64& rng) {
 }
 
 GaussianMap map_with_features(Index features) {
-  GaussianMap map = GaussianMap::uninitialized(GaussianMap::feature_offset(features));
+  GaussianMap map = GaussianMap::uninitialized(features);
   map.P().setZero();
   for (Index k = 0; k < map.dim(); ++k) {
     map.P()(k, k) = kFeatureSigma * kFeatureSigma;

@@ -19,10 +19,12 @@ double seconds_since(Clock::time_point start) {
 // A copy whose storage fits exactly: local maps keep capacity headroom while they grow,
 // finished ones do not need it.
 std::shared_ptr<const GaussianMap> compact_copy(const GaussianMap& map) {
-  auto copy = std::make_shared<GaussianMap>(GaussianMap::uninitialized(map.dim()));
+  auto copy = std::make_shared<GaussianMap>(
+      GaussianMap::uninitialized(map.num_features(), map.num_poses()));
   copy->x() = map.x();
   copy->P() = map.P();
   copy->ids() = map.ids();
+  copy->pose_ids() = map.pose_ids();
   return copy;
 }
 
@@ -93,7 +95,7 @@ DCSlam::~DCSlam() {
   if (worker_.joinable()) worker_.join();
 }
 
-JoinOptions DCSlam::join_options(int index) const {
+JoinOptions DCSlam::join_options(int index, std::int64_t first_robot_id) const {
   JoinOptions options;
   options.association = config_.join_association;
   options.gate_confidence = config_.gate_confidence;
@@ -102,6 +104,10 @@ JoinOptions DCSlam::join_options(int index) const {
   options.rjc_p_fail = config_.rjc_p_fail;
   options.max_iterations = config_.join_iterations;
   options.feature_sigma = config_.join_feature_sigma;
+  // Every local-map boundary is the R1 of exactly one join of the tree (or of the anytime
+  // fold): keeping R1 at every join keeps each boundary pose once.
+  options.keep_first_robot = config_.keep_local_map_poses;
+  options.first_robot_id = first_robot_id;
   // One reproducible stream per join, whatever the order in which joins are run.
   options.seed = config_.seed ^ (0x9E3779B97F4A7C15ULL * static_cast<std::uint64_t>(index + 1));
   return options;
@@ -125,6 +131,7 @@ void DCSlam::end_step(double seconds) {
 void DCSlam::predict(const Vec3& u, const Mat3& Q) {
   const auto start = Clock::now();
   local_->predict(u, Q);  // validates first: a bad call changes nothing
+  ++predictions_;
   begin_step();
   end_step(seconds_since(start));
 }
@@ -167,6 +174,7 @@ void DCSlam::close_local_map() {
         steps - feature.last_seen_step <= window});
   }
   node->first_leaf = leaf;
+  node->robot_id = predictions_;
   node->expected_features = node->map->num_features();
   const std::int64_t next_id = local_->next_fresh_id();
   local_ = std::make_unique<EkfSlam>(config_);
@@ -198,8 +206,11 @@ void DCSlam::push_and_merge(std::shared_ptr<Node> node) {
     task->result = result;
     result->leaves = task->left->leaves + task->right->leaves;
     result->first_leaf = task->left->first_leaf;
+    result->robot_id = task->right->robot_id;
     result->expected_features =
         task->left->expected_features + task->right->expected_features;
+    result->expected_poses = task->left->expected_poses + task->right->expected_poses +
+                             (config_.keep_local_map_poses ? 1 : 0);
     result->task = task;
     // The result is next needed when as many local maps again have been closed; finishing
     // within half that time leaves the other half for the joins that will wait on it.
@@ -227,7 +238,9 @@ void DCSlam::run_amortized_budget() {
   double budget = 0.0;
   for (const auto& task : queue_) {
     // A join not started yet: its fill before association (as MapJoin::remaining_work()).
-    const auto dim = static_cast<std::int64_t>(3 + 2 * task->result.lock()->expected_features);
+    const Node& result = *task->result.lock();
+    const auto dim = static_cast<std::int64_t>(3 + 2 * result.expected_features +
+                                               3 * result.expected_poses);
     const std::int64_t remaining =
         task->join ? task->join->remaining_work() : dim * (dim + 1) / 2 + 2 * dim;
     budget += static_cast<double>(remaining) /
@@ -268,7 +281,7 @@ std::unique_ptr<MapJoin> DCSlam::make_join(const NodeMap& first, const NodeMap& 
   const std::int64_t first_leaf = left.first_leaf;
   const std::int64_t last_leaf = right.first_leaf + right.leaves - 1;
   return std::make_unique<MapJoin>(
-      first.map, second.map, join_options(index),
+      first.map, second.map, join_options(index, left.robot_id),
       last_chance(*first.map, first.tentative, first_leaf, last_leaf),
       last_chance(*second.map, second.tentative, first_leaf, last_leaf));
 }
@@ -290,6 +303,7 @@ void DCSlam::complete(JoinTask& task) {
   result->tentative = std::move(tentative);
   result->map = std::move(map);
   result->expected_features = result->map->num_features();
+  result->expected_poses = result->map->num_poses();
   result->task.reset();
   task.left.reset();
   task.right.reset();
@@ -360,7 +374,7 @@ Estimate DCSlam::estimate() const {
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     const int index = -1 - static_cast<int>(it - stack.rbegin());
     NodeMap first = materialize(*it);
-    MapJoin join(first.map, std::move(joined), join_options(index));
+    MapJoin join(first.map, std::move(joined), join_options(index, (*it)->robot_id));
     join.finish();  // releases its inputs: at most the inputs and the result are alive
     joined = std::make_shared<GaussianMap>(join.take_result());
   }

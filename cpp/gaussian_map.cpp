@@ -1,6 +1,7 @@
 #include "dcslam/gaussian_map.hpp"
 
 #include <algorithm>
+#include <string>
 
 #include "dcslam/errors.hpp"
 
@@ -8,16 +9,28 @@ namespace dcslam {
 
 GaussianMap::GaussianMap() : x_(Eigen::VectorXd::Zero(32)), P_(Eigen::MatrixXd::Zero(32, 32)) {}
 
-GaussianMap GaussianMap::uninitialized(Index dim) {
-  if (dim < kRobotDim || (dim - kRobotDim) % kFeatureDim != 0) {
-    throw InvalidArgument("GaussianMap::uninitialized: dimension " + std::to_string(dim) +
-                          " is not 3 + 2n");
+namespace {
+void require_no_poses(Eigen::Index poses, const char* function) {
+  if (poses > 0) {
+    throw InvalidArgument(std::string("GaussianMap::") + function +
+                          ": the map holds past poses, it cannot grow or reorder its features");
   }
+}
+}  // namespace
+
+GaussianMap GaussianMap::uninitialized(Index num_features, Index num_poses) {
+  if (num_features < 0 || num_poses < 0) {
+    throw InvalidArgument("GaussianMap::uninitialized: negative size (" +
+                          std::to_string(num_features) + " features, " +
+                          std::to_string(num_poses) + " poses)");
+  }
+  const Index dim = kRobotDim + kFeatureDim * num_features + kPoseDim * num_poses;
   GaussianMap map;
   map.x_.resize(dim);
   map.P_.resize(dim, dim);
   map.dim_ = dim;
-  map.ids_.assign(static_cast<std::size_t>(map.num_features()), -1);
+  map.ids_.assign(static_cast<std::size_t>(num_features), -1);
+  map.pose_ids_.assign(static_cast<std::size_t>(num_poses), -1);
   return map;
 }
 
@@ -47,6 +60,7 @@ void GaussianMap::reserve(Index dim) {
 }
 
 void GaussianMap::resize(Index dim) {
+  require_no_poses(num_poses(), "resize");
   if (dim < kRobotDim || (dim - kRobotDim) % kFeatureDim != 0) {
     throw InvalidArgument("GaussianMap::resize: dimension " + std::to_string(dim) +
                           " is not 3 + 2n");
@@ -62,6 +76,7 @@ void GaussianMap::resize(Index dim) {
 }
 
 GaussianMap::Index GaussianMap::append_feature(const Vec2& mean, std::int64_t id) {
+  require_no_poses(num_poses(), "append_feature");
   const Index k = num_features();
   resize(dim_ + kFeatureDim);
   x_.segment<2>(feature_offset(k)) = mean;
@@ -92,6 +107,7 @@ void GaussianMap::remove_features(std::vector<Index> indices) {
     keep.push_back(feature_offset(k) + 1);
     kept_ids.push_back(ids_[static_cast<std::size_t>(k)]);
   }
+  for (Index i = pose_offset(0); i < dim_; ++i) keep.push_back(i);
   const Index new_dim = static_cast<Index>(keep.size());
   // Columns move left and rows move up (keep[i] >= i), so one in-place forward pass is safe.
   for (Index j = 0; j < new_dim; ++j) {
@@ -104,6 +120,7 @@ void GaussianMap::remove_features(std::vector<Index> indices) {
 }
 
 GaussianMap::Index GaussianMap::swap_remove_feature(Index k) {
+  require_no_poses(num_poses(), "swap_remove_feature");
   const Index n = num_features();
   if (k < 0 || k >= n) {
     throw InvalidArgument("GaussianMap::swap_remove_feature: bad feature index " + std::to_string(k));

@@ -63,6 +63,15 @@ std::int64_t factor_panel(Eigen::MatrixXd& S, Eigen::Index k0, Eigen::Index widt
   return std::max<std::int64_t>(1, (b * b * w / 2 + b * w * w / 2 + w * w * w / 3) / 8);
 }
 
+// What J_2 does to element a of m2's layout [robot (3) | feature pairs up to features_end |
+// poses (3 each)]: the x and y of a point or pose are rotated together, headings pass.
+enum class Role { X, Y, Heading };
+Role second_role(Index a, Index features_end) {
+  if (a >= 3 && a < features_end) return (a - 3) % 2 == 0 ? Role::X : Role::Y;
+  const Index component = a < 3 ? a : (a - features_end) % 3;
+  return component == 0 ? Role::X : component == 1 ? Role::Y : Role::Heading;
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------
@@ -80,11 +89,15 @@ JoinFrame::JoinFrame(const GaussianMap& first, const GaussianMap& second,
   const double c = std::cos(T_.z()), s = std::sin(T_.z());
   rotation_ << c, -s, s, c;
   J_R_.resize(second.dim(), 3);
-  J_R_.topRows<3>() << point_jacobian(rotation_ * second_x_.head<2>()), 0, 0, 1;
+  const auto pose_rows = [&](Index offset) {
+    J_R_.middleRows<3>(offset) << point_jacobian(rotation_ * second_x_.segment<2>(offset)), 0, 0, 1;
+  };
+  pose_rows(0);
   for (Index j = 0; j < second.num_features(); ++j) {
     J_R_.middleRows<2>(GaussianMap::feature_offset(j)) =
         point_jacobian(rotation_ * second_x_.segment<2>(GaussianMap::feature_offset(j)));
   }
+  for (Index q = 0; q < second.num_poses(); ++q) pose_rows(second.pose_offset(q));
 }
 
 // G*(x0 - x*) for an element p of m2 (prior mean p0, linearised at p_lin):
@@ -104,11 +117,12 @@ Vec2 JoinFrame::moved_second_feature(Index j) const {
 
 // The heading is linear in the headings: the result is their prior sum, wrapped only at the
 // linearisation point (the caller wraps the final value).
-Vec3 JoinFrame::moved_second_robot() const {
-  const Vec3 robot_lin = second_x_.head<3>();
-  Vec3 moved = compose(T_, robot_lin);
-  moved.head<2>() += linearisation_offset(second_.robot().head<2>(), robot_lin.head<2>());
-  moved.z() += (first_.robot().z() - T_.z()) + (second_.robot().z() - robot_lin.z());
+Vec3 JoinFrame::moved_second_pose(Index offset) const {
+  const Vec3 pose_lin = second_x_.segment<3>(offset);
+  const Vec3 pose0 = second_.x().segment<3>(offset);
+  Vec3 moved = compose(T_, pose_lin);
+  moved.head<2>() += linearisation_offset(pose0.head<2>(), pose_lin.head<2>());
+  moved.z() += (first_.robot().z() - T_.z()) + (pose0.z() - pose_lin.z());
   return moved;
 }
 
@@ -202,12 +216,13 @@ std::int64_t MapJoin::remaining_work() const {
   if (phase_ == Phase::Done) return 0;
   // The fill writes the lower triangle of the columns not yet done; the solve, once the
   // pairs are known, costs solve_row_cost() a row.
-  const Index out_dim = phase_ == Phase::Fill
-                            ? result_.dim()
-                            : first_->dim() + second_->dim() - GaussianMap::kRobotDim;
+  const Index out_dim =
+      phase_ == Phase::Fill ? result_.dim()
+                            : first_->dim() + second_->dim() -
+                                  (options_.keep_first_robot ? 0 : GaussianMap::kRobotDim);
   const auto left = static_cast<std::int64_t>(out_dim - next_out_col_);
   std::int64_t work = left * (left + 1) / 2 * fill_element_cost();
-  const Index solve_rows = first_ ? first_->dim() - 3 + second_->dim() : 0;
+  const Index solve_rows = first_->dim() + second_->dim();
   switch (phase_) {
     case Phase::Associate:
       // r is unknown until association: counted as 0 here (the cost grows once the pairs are
@@ -351,6 +366,13 @@ void MapJoin::associate() {
     first_kept_rows_.push_back(GaussianMap::feature_offset(i));
     first_kept_rows_.push_back(GaussianMap::feature_offset(i) + 1);
     first_kept_ids_.push_back(id);
+  }
+  // Past poses are never associated: m1's stay as they are, R1 joins them when kept.
+  for (Index q = 0; q < m1.num_poses(); ++q) {
+    for (Index c = 0; c < GaussianMap::kPoseDim; ++c) first_kept_rows_.push_back(m1.pose_offset(q) + c);
+  }
+  if (options_.keep_first_robot) {
+    for (Index c = 0; c < GaussianMap::kRobotDim; ++c) first_kept_rows_.push_back(c);
   }
   second_dropped_.assign(static_cast<std::size_t>(m2.num_features()), 0);
   for (Index j : second_tentative_) second_dropped_[static_cast<std::size_t>(j)] = 1;
@@ -500,12 +522,12 @@ void MapJoin::begin_constraints() {
   const GaussianMap& m2 = *second_;
   frame_ = std::make_unique<JoinFrame>(m1, m2, lin_first_robot_, lin_second_x_);
   rotation_ = frame_->rotation();
-  const Index n1 = m1.num_features(), n2 = m2.num_features();
+  const Index n2 = m2.num_features();
   const Index r = static_cast<Index>(pairs_.size());
   const auto& J_R = frame_->jacobian_first_robot();
 
-  // Kept elements of m2: its robot (R2, the joined map's robot) and the features neither
-  // matched nor dropped.
+  // Kept elements of m2: its robot (R2, the joined map's robot), the features neither
+  // matched nor dropped, and its past poses.
   std::vector<char> matched(static_cast<std::size_t>(n2), 0);
   for (const auto& pair : pairs_) matched[static_cast<std::size_t>(pair.second)] = 1;
   second_kept_rows_ = {0, 1, 2};
@@ -516,29 +538,32 @@ void MapJoin::begin_constraints() {
     second_kept_rows_.push_back(GaussianMap::feature_offset(j) + 1);
     second_kept_ids_.push_back(m2.ids()[static_cast<std::size_t>(j)]);
   }
+  for (Index q = 0; q < m2.num_poses(); ++q) {
+    for (Index c = 0; c < GaussianMap::kPoseDim; ++c) second_kept_rows_.push_back(m2.pose_offset(q) + c);
+  }
   const Index d2k = static_cast<Index>(second_kept_rows_.size());
   J_R_kept_.resize(d2k, 3);
   for (Index a = 0; a < d2k; ++a) {
     J_R_kept_.row(a) = J_R.row(second_kept_rows_[static_cast<std::size_t>(a)]);
   }
-  gain_.resize(2 * n1 + m2.dim(), 2 * r);
+  gain_.resize(m1.dim() + m2.dim(), 2 * r);
   whitened_h_.resize(2 * r);
   next_pair_ = 0;
 }
 
-// Columns of P H' (rows [F1 (2 n1); all of m2 (d2)]) and entries of h for the constraints
-// f_i - f'_j of the next pairs; O(n) a pair.
+// Columns of P H' (rows [all of m1 (d1); all of m2 (d2)]) and entries of h for the
+// constraints f_i - f'_j of the next pairs; O(n) a pair.
 std::int64_t MapJoin::constrain_next_pairs() {
   const GaussianMap& m1 = *first_;
   const GaussianMap& m2 = *second_;
-  const Index n1 = m1.num_features(), d2 = m2.dim();
+  const Index d1 = m1.dim(), d2 = m2.dim();
   const Index r = static_cast<Index>(pairs_.size());
   const auto& J_R = frame_->jacobian_first_robot();
   const auto P1 = m1.P();
   const auto P2 = m2.P();
   const Mat3 P1_RR = P1.topLeftCorner<3, 3>();
-  const auto A1 = P1.block(3, 0, 2 * n1, 3);  // cov(F1, R1)
-  auto PHt_first = gain_.topRows(2 * n1);
+  const auto A1 = P1.leftCols(3);  // cov(m1, R1)
+  auto PHt_first = gain_.topRows(d1);
   auto PHt_second = gain_.bottomRows(d2);
   Eigen::MatrixXd second_col(d2, 2);
   const Index end = std::min<Index>(r, next_pair_ + kPairsPerUnit);
@@ -546,11 +571,11 @@ std::int64_t MapJoin::constrain_next_pairs() {
     const auto [i, j] = pairs_[static_cast<std::size_t>(k)];
     const Index oi = GaussianMap::feature_offset(i), oj = GaussianMap::feature_offset(j);
     const Eigen::Matrix<double, 2, 3> J_j = J_R.middleRows<2>(oj);
-    PHt_first.middleCols<2>(2 * k).noalias() = P1.block(3, oi, 2 * n1, 2);
+    PHt_first.middleCols<2>(2 * k).noalias() = P1.middleCols(oi, 2);
     PHt_first.middleCols<2>(2 * k).noalias() -= A1 * J_j.transpose();
     // cov(m2 rows, f'_j) = J_R P1_RR J_j' + J_2 P2[:, f_j] Rot'.
     second_col.noalias() = P2.middleCols(oj, 2) * rotation_.transpose();
-    rotate_second_rows(second_col, 0);
+    rotate_second_rows(second_col, 0, GaussianMap::feature_offset(m2.num_features()));
     PHt_second.middleCols<2>(2 * k).noalias() = J_R * P1.block(0, oi, 3, 2);
     PHt_second.middleCols<2>(2 * k).noalias() -= J_R * (P1_RR * J_j.transpose());
     PHt_second.middleCols<2>(2 * k) -= second_col;
@@ -563,15 +588,14 @@ std::int64_t MapJoin::constrain_next_pairs() {
 
 // S = H P H' from the rows of P H' (O(r^2)); the factorisation then runs a panel at a time.
 void MapJoin::begin_factor() {
-  const GaussianMap& m1 = *first_;
-  const Index n1 = m1.num_features();
+  const Index d1 = first_->dim();
   const Index r = static_cast<Index>(pairs_.size());
   Eigen::MatrixXd& S = constraint_factor_;
   S.resize(2 * r, 2 * r);
   for (Index a = 0; a < r; ++a) {
     const auto [i, j] = pairs_[static_cast<std::size_t>(a)];
-    S.middleRows<2>(2 * a) = gain_.middleRows<2>(2 * i) -
-                             gain_.middleRows<2>(2 * n1 + GaussianMap::feature_offset(j));
+    S.middleRows<2>(2 * a) = gain_.middleRows<2>(GaussianMap::feature_offset(i)) -
+                             gain_.middleRows<2>(d1 + GaussianMap::feature_offset(j));
   }
   S = 0.5 * (S + S.transpose()).eval();
   next_panel_ = 0;
@@ -603,14 +627,22 @@ std::int64_t MapJoin::solve_next_rows() {
 }
 
 // The result's means and the low-rank factors of the fill (see the header), O(n r) in all,
-// a block of output rows per unit of work: output row o is m2's robot (o < 3), an m1 feature
-// (o < first_end) or an m2 feature, and each row only reads its own row of P H' (now W).
+// a block of output rows per unit of work: output row o belongs to a segment of m1's or m2's
+// kept elements, and each row only reads its own row of P H' (now W).
 void MapJoin::begin_assemble() {
+  const GaussianMap& m1 = *first_;
+  const GaussianMap& m2 = *second_;
   const Index d1k = static_cast<Index>(first_kept_rows_.size());
   const Index d2k = static_cast<Index>(second_kept_rows_.size());
+  const Index d1f = 2 * static_cast<Index>(first_kept_ids_.size());
+  const Index d2f = 2 * static_cast<Index>(second_kept_ids_.size());
   const Index k = 2 * static_cast<Index>(pairs_.size());
-  const Index out_dim = 3 + d1k + (d2k - 3);
-  result_ = GaussianMap::uninitialized(out_dim);
+  const Index out_dim = d1k + d2k;
+  const Index poses = (d1k - d1f + d2k - 3 - d2f) / GaussianMap::kPoseDim;
+  result_ = GaussianMap::uninitialized((d1f + d2f) / GaussianMap::kFeatureDim, poses);
+  segments_ = {Segment{0, 3, true, 0}, Segment{3, d1f, false, 0}, Segment{3 + d1f, d2f, true, 3},
+               Segment{3 + d1f + d2f, d1k - d1f, false, d1f},
+               Segment{3 + d1k + d2f, d2k - 3 - d2f, true, 3 + d2f}};
   left_.resize(out_dim, 6 + k);
   right_second_.resize(d2k, 3 + k);
   right_first_.resize(d1k, 3 + k);
@@ -618,57 +650,76 @@ void MapJoin::begin_assemble() {
   std::copy(first_kept_ids_.begin(), first_kept_ids_.end(), ids.begin());
   std::copy(second_kept_ids_.begin(), second_kept_ids_.end(),
             ids.begin() + static_cast<std::ptrdiff_t>(first_kept_ids_.size()));
+  std::vector<std::int64_t> pose_ids = m1.pose_ids();
+  if (options_.keep_first_robot) pose_ids.push_back(options_.first_robot_id);
+  pose_ids.insert(pose_ids.end(), m2.pose_ids().begin(), m2.pose_ids().end());
+  result_.pose_ids() = std::move(pose_ids);
   report_.features_joined = result_.num_features();
   next_assemble_row_ = 0;
 }
 
+const MapJoin::Segment& MapJoin::segment_of(Index out_row) const {
+  for (const Segment& segment : segments_) {
+    if (out_row >= segment.out_begin && out_row < segment.out_begin + segment.size) return segment;
+  }
+  throw std::logic_error("MapJoin: output row " + std::to_string(out_row) + " out of range");
+}
+
+Index MapJoin::second_kept_features_end() const {
+  return GaussianMap::feature_offset(static_cast<Index>(second_kept_ids_.size()));
+}
+
 std::int64_t MapJoin::assemble_next_rows() {
   const GaussianMap& m1 = *first_;
+  const GaussianMap& m2 = *second_;
   const JoinFrame& frame = *frame_;
-  const Index n1 = m1.num_features();
-  const Index first_end = 3 + static_cast<Index>(first_kept_rows_.size());
+  const Index d1 = m1.dim();
+  const Index first_features_end = 2 * static_cast<Index>(first_kept_ids_.size());
+  const Index second_features_end = second_kept_features_end();
+  const Index second_poses_begin = GaussianMap::feature_offset(m2.num_features());
   const Index k = 2 * static_cast<Index>(pairs_.size());
   const Index out_dim = result_.dim();
   const auto P1 = m1.P();
   const Mat3 P1_RR = P1.topLeftCorner<3, 3>();
   const Eigen::VectorXd& v = whitened_h_;
   auto x = result_.x();
-  const Vec3 moved_robot = frame.moved_second_robot();
   // Row-wise copies out of and into column-major matrices are strided: about 16
   // multiply-adds' worth per element.
   const Index rows = std::max<Index>(16, options_.work_unit / (16 * (6 + k)));
   const Index end = std::min(out_dim, next_assemble_row_ + rows);
   for (Index o = next_assemble_row_; o < end; ++o) {
-    if (o >= 3 && o < first_end) {  // an m1 feature: L = [A1 | W | 0], N = [-W | A1]
-      const Index b = o - 3;
-      const Index src = first_kept_rows_[static_cast<std::size_t>(b)];
-      const auto W_row = gain_.row(src - 3);
+    const Segment& segment = segment_of(o);
+    const Index a = segment.local_begin + (o - segment.out_begin);
+    if (!segment.second) {  // an m1 element: L = [A1 | W | 0], N = [-W | A1]
+      const Index src = first_kept_rows_[static_cast<std::size_t>(a)];
+      const auto W_row = gain_.row(src);
       left_.block<1, 3>(o, 0) = P1.block<1, 3>(src, 0);
       left_.row(o).segment(3, k) = W_row;
       left_.block<1, 3>(o, 3 + k).setZero();
-      right_first_.row(b).head(k) = -W_row;
-      right_first_.block<1, 3>(b, k) = P1.block<1, 3>(src, 0);
+      right_first_.row(a).head(k) = -W_row;
+      right_first_.block<1, 3>(a, k) = P1.block<1, 3>(src, 0);
       x(o) = m1.x()(src) - W_row.dot(v);
+      // The headings of m1's poses (and of R1) are corrected too: wrapped again.
+      if (a >= first_features_end && (a - first_features_end) % 3 == 2) x(o) = wrap_angle(x(o));
       continue;
     }
-    // m2's robot or an m2 feature: L = [J_R P1_RR | W | J_R], N = [J_R | -W].
-    const Index a = o < 3 ? o : 3 + (o - first_end);
+    // m2's robot, feature or pose: L = [J_R P1_RR | W | J_R], N = [J_R | -W].
     const Index src = second_kept_rows_[static_cast<std::size_t>(a)];
-    const auto W_row = gain_.row(2 * n1 + src);
+    const auto W_row = gain_.row(d1 + src);
     left_.block<1, 3>(o, 0) = J_R_kept_.row(a) * P1_RR;
     left_.row(o).segment(3, k) = W_row;
     left_.block<1, 3>(o, 3 + k) = J_R_kept_.row(a);
     right_second_.block<1, 3>(a, 0) = J_R_kept_.row(a);
     right_second_.row(a).tail(k) = -W_row;
     double moved;
-    if (o < 3) {
-      moved = moved_robot(o);
+    if (src >= 3 && src < second_poses_begin) {
+      moved = frame.moved_second_feature((src - 3) / 2)((src - 3) % 2);
     } else {
-      const Index j = (src - 3) / 2;
-      moved = frame.moved_second_feature(j)((src - 3) % 2);
+      const Index offset = src < 3 ? 0 : src - (src - second_poses_begin) % 3;
+      moved = frame.moved_second_pose(offset)(src - offset);
     }
     x(o) = moved - W_row.dot(v);
-    if (o == 2) x(o) = wrap_angle(x(o));
+    if (second_role(a, second_features_end) == Role::Heading) x(o) = wrap_angle(x(o));
   }
   const std::int64_t done = end - next_assemble_row_;
   next_assemble_row_ = end;
@@ -680,57 +731,60 @@ std::int64_t MapJoin::assemble_next_rows() {
   return done * (6 + k) / 4 + 1;
 }
 
-// Applies J_2 (block-diagonal rotations: Rot on the robot's (x, y), identity on its heading,
-// Rot on each feature) from the left to rows [local_begin, ...) of m2's elements (all of them
-// or the kept ones: both start with the robot and then pair up).
-void MapJoin::rotate_second_rows(Eigen::Ref<Eigen::MatrixXd> block, Index local_begin) const {
+// Applies J_2 (block-diagonal rotations: Rot on the (x, y) of the robot, of each feature and
+// of each pose, identity on headings) from the left to rows [local_begin, ...) of m2's
+// elements.
+void MapJoin::rotate_second_rows(Eigen::Ref<Eigen::MatrixXd> block, Index local_begin,
+                                 Index features_end) const {
   const double c = rotation_(0, 0), s = rotation_(1, 0);
-  const auto rotate_pair = [&](Index a) {
+  for (Index a = 0; a < block.rows(); ++a) {
+    if (second_role(local_begin + a, features_end) != Role::X) continue;
     for (Index col = 0; col < block.cols(); ++col) {
       const double u = block(a, col), w = block(a + 1, col);
       block(a, col) = c * u - s * w;
       block(a + 1, col) = s * u + c * w;
     }
-  };
-  Index first_pair = 0;
-  if (local_begin == 0) {
-    rotate_pair(0);
-    first_pair = 3;
+    ++a;
   }
-  for (Index a = first_pair; a + 1 < block.rows(); a += 2) rotate_pair(a);
 }
 
-void MapJoin::rotate_second_columns(Eigen::Ref<Eigen::MatrixXd> block,
-                                    Index local_begin) const {
+void MapJoin::rotate_second_columns(Eigen::Ref<Eigen::MatrixXd> block, Index local_begin,
+                                    Index features_end) const {
   const double c = rotation_(0, 0), s = rotation_(1, 0);
-  const auto rotate_pair = [&](Index a) {
+  for (Index a = 0; a < block.cols(); ++a) {
+    if (second_role(local_begin + a, features_end) != Role::X) continue;
     for (Index row = 0; row < block.rows(); ++row) {
       const double u = block(row, a), w = block(row, a + 1);
       block(row, a) = c * u - s * w;
       block(row, a + 1) = s * u + c * w;
     }
-  };
-  Index first_pair = 0;
-  if (local_begin == 0) {
-    rotate_pair(0);
-    first_pair = 3;
+    ++a;
   }
-  for (Index a = first_pair; a + 1 < block.cols(); a += 2) rotate_pair(a);
 }
 
 void MapJoin::write_moved_second_block(Index row_begin, Index rows, Index col_begin,
                                        Index width, Index out_row, Index out_col) {
   const auto P2 = second_->P();
-  scratch_.resize(rows, width);
-  for (Index b = 0; b < width; ++b) {
-    const Index src_col = second_kept_rows_[static_cast<std::size_t>(col_begin + b)];
-    for (Index a = 0; a < rows; ++a) {
-      scratch_(a, b) = P2(second_kept_rows_[static_cast<std::size_t>(row_begin + a)], src_col);
+  const Index features_end = second_kept_features_end();
+  // J_2 mixes the x and y of a pair: where the block splits one, it is gathered widened by
+  // the missing partner, so tiles and column blocks may start and end anywhere.
+  const auto widened = [&](Index begin, Index size) {
+    return std::make_pair(begin - (second_role(begin, features_end) == Role::Y ? 1 : 0),
+                          begin + size + (second_role(begin + size - 1, features_end) == Role::X ? 1 : 0));
+  };
+  const auto [row0, row1] = widened(row_begin, rows);
+  const auto [col0, col1] = widened(col_begin, width);
+  scratch_.resize(row1 - row0, col1 - col0);
+  for (Index b = col0; b < col1; ++b) {
+    const Index src_col = second_kept_rows_[static_cast<std::size_t>(b)];
+    for (Index a = row0; a < row1; ++a) {
+      scratch_(a - row0, b - col0) = P2(second_kept_rows_[static_cast<std::size_t>(a)], src_col);
     }
   }
-  rotate_second_rows(scratch_, row_begin);
-  rotate_second_columns(scratch_, col_begin);
-  result_.P().block(out_row, out_col, rows, width) = scratch_;
+  rotate_second_rows(scratch_, row0, features_end);
+  rotate_second_columns(scratch_, col0, features_end);
+  result_.P().block(out_row, out_col, rows, width) =
+      scratch_.block(row_begin - row0, col_begin - col0, rows, width);
 }
 
 void MapJoin::write_first_block(Index row_begin, Index rows, Index col_begin, Index width,
@@ -745,52 +799,48 @@ void MapJoin::write_first_block(Index row_begin, Index rows, Index col_begin, In
   }
 }
 
-// One block of columns [col, col + width): the lower part (rows >= col) is computed as
-// base + L N', then mirrored into the rows above the diagonal of later columns.
+// One block of columns [col, col + width) inside one segment: the lower part (rows >= col)
+// is computed as base + L N', then mirrored into the rows above the diagonal of later
+// columns. The base is a block of P1 or of J_2 P2 J_2' where rows and columns come from the
+// same map, 0 across the maps.
 std::int64_t MapJoin::fill_next_block() {
-  const Index d1k = static_cast<Index>(first_kept_rows_.size());
-  const Index first_end = 3 + d1k;
   const Index out_dim = result_.dim();
   const Index k = static_cast<Index>(right_first_.cols()) - 3;
   const Index col = next_out_col_;
   auto out = result_.P();
-  if (col < 3) {  // the robot's columns: base J_2 P2 J_2' on m2's rows, 0 on F1's
-    const Index kept_features = out_dim - first_end;
-    write_moved_second_block(0, 3, 0, 3, 0, 0);
-    out.block(3, 0, d1k, 3).setZero();
-    write_moved_second_block(3, kept_features, 0, 3, first_end, 0);
-    out.block(0, 0, out_dim, 3).noalias() +=
-        left_.leftCols(3 + k) * right_second_.topRows(3).transpose();
-    out.block(0, 3, 3, out_dim - 3) = out.block(3, 0, out_dim - 3, 3).transpose();
-    next_out_col_ = 3;
-    return static_cast<std::int64_t>(out_dim) * 3 * fill_element_cost();
-  }
-  // A feature column block [col, col + width) is written a tile of rows at a time, rows from
-  // the diagonal down: the tiles keep the block's width (so the GEMM streams the low-rank
-  // factor once per block, as unsliced) and bound a unit of work when r is large. Tiles
-  // start on odd rows, so they never split a feature's pair of rows.
-  const bool first_columns = col < first_end;
-  const Index width = std::min(options_.block_columns, (first_columns ? first_end : out_dim) - col);
+  const Segment& columns = segment_of(col);
+  const Index width = std::min(options_.block_columns, columns.out_begin + columns.size - col);
+  const Index local_col = columns.local_begin + (col - columns.out_begin);
+  // The block is written a tile of rows at a time, rows from the diagonal down: the tiles
+  // keep the block's width (so the GEMM streams the low-rank factor once per block, as
+  // unsliced) and bound a unit of work when r is large.
   const Index row0 = next_fill_row_ > col ? next_fill_row_ : col;
   // A tile element costs its base (a gather, and for m2 a rotation: about 16 multiply-adds'
   // worth) plus its dot product of length 3 + k.
-  const Index tile = std::max<Index>(64, (options_.work_unit / (width * (19 + k))) & ~Index{1});
+  const Index tile = std::max<Index>(64, options_.work_unit / (width * (19 + k)));
   const Index row1 = std::min(out_dim, row0 + tile);
   const Index rows = row1 - row0;
-  if (first_columns) {  // m1's features: base P1 on F1's rows, 0 on m2's
-    const Index begin = col - 3;  // coordinate within F1 kept
-    const Index m1_rows = std::max<Index>(0, std::min(row1, first_end) - row0);
-    if (m1_rows > 0) write_first_block(row0 - 3, m1_rows, begin, width, row0, col);
-    out.block(row0 + m1_rows, col, rows - m1_rows, width).setZero();
-    out.block(row0, col, rows, width).noalias() +=
-        left_.rightCols(3 + k).middleRows(row0, rows) *
-        right_first_.middleRows(begin, width).transpose();
-  } else {  // m2's unmatched features: base J_2 P2 J_2'
-    const Index local = 3 + (col - first_end);
-    write_moved_second_block(3 + (row0 - first_end), rows, local, width, row0, col);
+  for (const Segment& segment : segments_) {
+    const Index begin = std::max(row0, segment.out_begin);
+    const Index end = std::min(row1, segment.out_begin + segment.size);
+    if (begin >= end) continue;
+    const Index local_row = segment.local_begin + (begin - segment.out_begin);
+    if (segment.second != columns.second) {
+      out.block(begin, col, end - begin, width).setZero();
+    } else if (segment.second) {
+      write_moved_second_block(local_row, end - begin, local_col, width, begin, col);
+    } else {
+      write_first_block(local_row, end - begin, local_col, width, begin, col);
+    }
+  }
+  if (columns.second) {
     out.block(row0, col, rows, width).noalias() +=
         left_.leftCols(3 + k).middleRows(row0, rows) *
-        right_second_.middleRows(local, width).transpose();
+        right_second_.middleRows(local_col, width).transpose();
+  } else {
+    out.block(row0, col, rows, width).noalias() +=
+        left_.rightCols(3 + k).middleRows(row0, rows) *
+        right_first_.middleRows(local_col, width).transpose();
   }
   next_fill_row_ = row1;
   if (row1 == out_dim) {  // block done: mirror it into the rows above the later columns

@@ -54,6 +54,9 @@ struct SlamConfig {
   // D&C: run joins on a background worker thread instead (the multi-core form of the
   // amortized schedule); results are bitwise identical to immediate and amortized joins.
   bool threaded_joins = false;
+  // D&C: keep the robot pose at every local-map boundary in the joined map (DESIGN.md §4.5), as
+  // past poses with their full covariance (Estimate::past_poses); the EKF keeps none.
+  bool keep_local_map_poses = false;
 
   // Throws InvalidArgument naming the first field that is out of range.
   void validate() const;

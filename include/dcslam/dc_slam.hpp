@@ -80,6 +80,10 @@ class DCSlam : public SlamFilter {
     int leaves = 1;
     std::int64_t first_leaf = 0;  // the node holds local maps first_leaf .. first_leaf+leaves-1
     std::int64_t expected_features = 0;
+    std::int64_t expected_poses = 0;  // past poses (keep_local_map_poses)
+    // Id of the node's robot as a past pose: the predict() calls made before its last local
+    // map closed.
+    std::int64_t robot_id = 0;
     std::shared_ptr<const GaussianMap> map;  // set once complete
     std::vector<TentativeFeature> tentative;  // set with `map`
     std::shared_ptr<JoinTask> task;          // set while pending
@@ -101,7 +105,8 @@ class DCSlam : public SlamFilter {
   std::int64_t work_on(JoinTask& task, std::int64_t budget);
   void complete(JoinTask& task);
   void worker_loop();
-  JoinOptions join_options(int index) const;
+  // Options of join `index`, whose first map's robot has pose id `first_robot_id`.
+  JoinOptions join_options(int index, std::int64_t first_robot_id) const;
   struct NodeMap {
     std::shared_ptr<const GaussianMap> map;
     std::vector<TentativeFeature> tentative;
@@ -119,6 +124,7 @@ class DCSlam : public SlamFilter {
   std::unique_ptr<EkfSlam> local_;
   std::int64_t local_map_steps_ = 0;
   std::int64_t steps_ = 0;
+  std::int64_t predictions_ = 0;
   std::int64_t closed_local_maps_ = 0;
   std::int64_t steps_in_closed_maps_ = 0;
   int joins_created_ = 0;

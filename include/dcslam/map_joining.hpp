@@ -1,7 +1,8 @@
 #pragma once
 // Map joining 2.0 (DESIGN.md §4; Paz et al. 2007 §III): join a map m1 (base B1, robot R1)
-// with the next map m2 (base B2 = R1, robot R2) into one map with base B1, robot R2 and
-// features (m1 \ unmatched tentative) ∪ (m2 \ matched).
+// with the next map m2 (base B2 = R1, robot R2) into one map with base B1, robot R2,
+// features (m1 \ unmatched tentative) ∪ (m2 \ matched) and past poses m1's, then R1 (if
+// kept, DESIGN.md §4.5), then m2's moved into B1: [R2' | F1 | F2' | Q1 | R1 | Q2'].
 //
 // The join is computed as one fused pass: the stacked covariance of [m1; m2 moved into B1]
 // is never built. Its blocks are produced on demand from P1, P2 and the Jacobians of ⊕, the
@@ -39,6 +40,10 @@ struct JoinOptions {
   // docs/divide_and_conquer.md): 1 linearises ⊕ once at the prior means (the one-shot join);
   // more re-linearise at the constrained estimate until the step is negligible.
   int max_iterations = 10;
+  // Keep R1 in the result as a past pose with id first_robot_id (a sparse trajectory at
+  // local-map boundaries, DESIGN.md §4.5). Past poses the inputs hold are always kept.
+  bool keep_first_robot = false;
+  std::int64_t first_robot_id = -1;
 };
 
 struct JoinReport {
@@ -55,7 +60,7 @@ struct JoinReport {
   std::int64_t work_units = 0;  // covariance elements written plus association/preparation
 };
 
-// Covariance blocks of the stacked map [R1; F1; R2'; F2'] (m2 moved into B1 by
+// Covariance blocks of the stacked map [R1; F1; Q1; R2'; F2'; Q2'] (m2 moved into B1 by
 // x_{B1 R1} ⊕ ·), computed on demand in O(1) each, without building the stacked matrix.
 // Feature indices are local: i indexes m1's features, j indexes m2's.
 //
@@ -72,9 +77,11 @@ class JoinFrame {
   const GaussianMap& second() const { return second_; }
 
   Vec2 first_feature(Eigen::Index i) const { return first_.feature(i); }
-  // m2's feature j and robot moved into B1 (the linearised values above).
+  // m2's feature j, robot, and the pose at state offset `offset` (0: the robot; or a past
+  // pose's pose_offset) moved into B1 (the linearised values above).
   Vec2 moved_second_feature(Eigen::Index j) const;
-  Vec3 moved_second_robot() const;
+  Vec3 moved_second_robot() const { return moved_second_pose(0); }
+  Vec3 moved_second_pose(Eigen::Index offset) const;
 
   // cov(f_i, f_k), cov(f_i, f'_j), cov(f'_j, f'_l) of the stacked map.
   Mat2 first_first(Eigen::Index i, Eigen::Index k) const;
@@ -165,10 +172,14 @@ class MapJoin {
   // [col_begin, col_begin + width) (indices into first_kept_rows_), at (out_row, out_col).
   void write_first_block(Eigen::Index row_begin, Eigen::Index rows, Eigen::Index col_begin,
                          Eigen::Index width, Eigen::Index out_row, Eigen::Index out_col);
-  // J_2 from the left (rows) or J_2' from the right (columns) on a block of m2's kept
-  // elements starting at local index `local_begin` (0: the robot; odd: a feature pair).
-  void rotate_second_rows(Eigen::Ref<Eigen::MatrixXd> block, Eigen::Index local_begin) const;
-  void rotate_second_columns(Eigen::Ref<Eigen::MatrixXd> block, Eigen::Index local_begin) const;
+  // J_2 from the left (rows) or J_2' from the right (columns) on a block of m2's elements
+  // (all of them or the kept ones: the robot, feature pairs up to local index features_end,
+  // then poses) starting at local index `local_begin`. The block must not split an (x, y)
+  // pair: it starts on an x or a heading and ends after a y or a heading.
+  void rotate_second_rows(Eigen::Ref<Eigen::MatrixXd> block, Eigen::Index local_begin,
+                          Eigen::Index features_end) const;
+  void rotate_second_columns(Eigen::Ref<Eigen::MatrixXd> block, Eigen::Index local_begin,
+                             Eigen::Index features_end) const;
   void release_inputs();
   std::int64_t fill_element_cost() const;
   std::int64_t solve_row_cost() const;
@@ -200,13 +211,26 @@ class MapJoin {
 
   // Prepared for the fill. Every block of the result is a "base" (a block of P1, or of
   // J_2 P2 J_2') plus a low-rank term L N' with inner dimension 3 + 2r:
-  //   columns of m2's kept elements: L = [J_R P1_RR or cov(F1, R1) | W], N = [J_R | -W];
-  //   columns of m1's features:      L = [W | J_R or 0],               N = [-W | cov(F1, R1)].
-  // left_ holds [JP | W | J] in output row order; right_* hold N for each column kind.
-  std::vector<Eigen::Index> first_kept_rows_;   // rows of P1: m1's features not dropped
-  std::vector<std::int64_t> first_kept_ids_;
-  std::vector<Eigen::Index> second_kept_rows_;  // m2's robot rows, then unmatched features
-  std::vector<std::int64_t> second_kept_ids_;
+  //   columns of m2's kept elements: L = [J_R P1_RR or cov(E1, R1) | W], N = [J_R | -W];
+  //   columns of m1's kept elements: L = [W | J_R or 0],               N = [-W | cov(E1, R1)]
+  // (E1: m1's kept elements, R1 among them when kept). left_ holds [JP | W | J] in output row
+  // order; right_* hold N for each column kind.
+  // m1's kept elements: features not dropped, then its past poses, then R1 when kept.
+  std::vector<Eigen::Index> first_kept_rows_;   // rows of P1
+  std::vector<std::int64_t> first_kept_ids_;    // of the kept features
+  // m2's kept elements: the robot, then unmatched features, then its past poses.
+  std::vector<Eigen::Index> second_kept_rows_;  // rows of P2
+  std::vector<std::int64_t> second_kept_ids_;   // of the kept features
+  // The result's rows are runs of consecutive kept elements of one map (see the top of the
+  // file): robot R2', F1, F2', Q1 and R1, Q2'.
+  struct Segment {
+    Eigen::Index out_begin = 0, size = 0;
+    bool second = false;  // from m2 (else m1)
+    Eigen::Index local_begin = 0;  // index into first_kept_rows_ or second_kept_rows_
+  };
+  std::vector<Segment> segments_;
+  const Segment& segment_of(Eigen::Index out_row) const;
+  Eigen::Index second_kept_features_end() const;  // local index of m2's first kept pose
   Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_kept_;  // rows of J_R for the kept elements
   static constexpr Eigen::Index kPairsPerUnit = 16;
   Eigen::Index solve_rows_per_unit() const;

@@ -17,12 +17,18 @@ namespace dcslam {
 using MeasurementMatrix = Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>;
 using MeasurementsRef = Eigen::Ref<const MeasurementMatrix>;
 
-// The whole map in the frame of the first pose, ordered [robot, lm 0, lm 1, ...].
+// The whole map in the frame of the first pose, ordered [robot, lm 0, lm 1, ..., past pose 0,
+// past pose 1, ...].
 struct Estimate {
   Vec3 robot = Vec3::Zero();
   Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> landmarks;  // (n, 2)
   std::vector<std::int64_t> landmark_ids;                                // (n,)
-  Eigen::MatrixXd covariance;                                            // (3+2n, 3+2n)
+  // Past robot poses (D&C with keep_local_map_poses; none otherwise), oldest first, and the
+  // step of each: the number of predict() calls made before it (a simulator's poses[id]).
+  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> past_poses;  // (m, 3)
+  std::vector<std::int64_t> past_pose_ids;                                // (m,)
+  // (3+2n+3m, 3+2n+3m); its leading (3+2n) block is the covariance of [robot, landmarks].
+  Eigen::MatrixXd covariance;
 };
 
 // The Estimate of `map`, with `covariance` its P (passed apart so that a caller done with the

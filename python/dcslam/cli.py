@@ -90,10 +90,13 @@ JOIN_ASSOCIATION_OPTION = typer.Option(None, "--join-association", help="Data as
 LOCAL_MAP_OPTION = typer.Option(None, "--local-map-features", min=1, help="D&C: close a local map at this many features.")
 JOIN_ITERATIONS_OPTION = typer.Option(None, "--join-iterations", min=1, help="D&C: linearisation points "
                                       "of each join (1: the one-shot join; default: SlamConfig's).")
+KEEP_POSES_OPTION = typer.Option(False, "--keep-local-map-poses", help="D&C: keep the robot pose at every "
+                                  "local-map boundary in the map (past_poses in map_dc.npz).")
 PROGRESS_OPTION = typer.Option(None, "--progress/--no-progress", help="Progress bar (default: on a terminal).")
 
 
-def _config_with(cfg, association, join_association, local_map_features, join_iterations):
+def _config_with(cfg, association, join_association, local_map_features, join_iterations,
+                 keep_local_map_poses):
     """The dataset's config with the command line's overrides."""
     from .config import SlamConfig
 
@@ -106,6 +109,8 @@ def _config_with(cfg, association, join_association, local_map_features, join_it
         values["local_map_features"] = local_map_features
     if join_iterations is not None:
         values["join_iterations"] = join_iterations
+    if keep_local_map_poses:
+        values["keep_local_map_poses"] = True
     return SlamConfig.from_dict(values)
 
 
@@ -236,6 +241,7 @@ def run_victoria_park(
     join_association: Optional[JoinAssociationChoice] = JOIN_ASSOCIATION_OPTION,
     local_map_features: Optional[int] = LOCAL_MAP_OPTION,
     join_iterations: Optional[int] = JOIN_ITERATIONS_OPTION,
+    keep_local_map_poses: bool = KEEP_POSES_OPTION,
     progress: Optional[bool] = PROGRESS_OPTION,
 ) -> None:
     """SLAM on Victoria Park (ACFR): trees as landmarks, no ids, GPS as the reference.
@@ -250,7 +256,7 @@ def run_victoria_park(
     try:
         dataset = victoria_park(data_dir)
         cfg = _config_with(dataset.slam_config(), association, join_association, local_map_features,
-                           join_iterations)
+                           join_iterations, keep_local_map_poses)
     except ValueError as error:
         _fail(str(error))
     _run_dataset("Victoria Park", dataset.steps, cfg, filter, output, max_steps, plots, progress, gps=dataset.gps,
@@ -269,6 +275,7 @@ def run_isam(
     join_association: Optional[JoinAssociationChoice] = JOIN_ASSOCIATION_OPTION,
     local_map_features: Optional[int] = LOCAL_MAP_OPTION,
     join_iterations: Optional[int] = JOIN_ITERATIONS_OPTION,
+    keep_local_map_poses: bool = KEEP_POSES_OPTION,
     progress: Optional[bool] = PROGRESS_OPTION,
 ) -> None:
     """SLAM on an iSAM/GTSAM 2D graph replayed as steps, with the file's landmark ids.
@@ -281,7 +288,7 @@ def run_isam(
     try:
         dataset = read_isam2d(file)
         cfg = _config_with(dataset.slam_config(), association, join_association, local_map_features,
-                           join_iterations)
+                           join_iterations, keep_local_map_poses)
     except ValueError as error:
         _fail(str(error))
     _run_dataset(file.name, dataset.steps, cfg, filter, output, max_steps, plots, progress)

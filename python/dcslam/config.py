@@ -64,6 +64,9 @@ class SlamConfig:
         amortize: D&C spreads each join over the following steps (DESIGN.md §5).
         threaded_joins: D&C runs joins on a background thread while mapping goes on
             (same result as ``amortize``; uses a second core).
+        keep_local_map_poses: D&C keeps the robot pose at every local-map boundary in the
+            map, with its covariance: ``Estimate.past_poses``, ``past_pose_ids`` and
+            ``joint_covariance`` (DESIGN.md §4.5). No effect on :class:`~dcslam.EkfSlam`.
     """
 
     observation: str = "range_bearing"
@@ -84,6 +87,7 @@ class SlamConfig:
     seed: int = 0
     amortize: bool = True
     threaded_joins: bool = False
+    keep_local_map_poses: bool = False
 
     def _to_core(self) -> "_core.SlamConfig":
         return to_core_struct(self, _core.SlamConfig(), "SlamConfig")

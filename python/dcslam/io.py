@@ -99,16 +99,23 @@ def read_kitti(path: PathLike) -> np.ndarray:
 
 def save_map(path: PathLike, estimate: Estimate) -> None:
     """Saves the map as ``.npz``: robot (3,), landmarks (n, 2), landmark_ids (n,),
-    covariance (3 + 2n, 3 + 2n)."""
+    past_poses (m, 3), past_pose_ids (m,), covariance (3 + 2n + 3m, 3 + 2n + 3m) (the joint
+    one: :attr:`Estimate.joint_covariance`)."""
     np.savez_compressed(path, robot=estimate.robot, landmarks=estimate.landmarks,
-                        landmark_ids=estimate.landmark_ids, covariance=estimate.covariance)
+                        landmark_ids=estimate.landmark_ids, past_poses=estimate.past_poses,
+                        past_pose_ids=estimate.past_pose_ids,
+                        covariance=estimate.joint_covariance)
 
 
 def load_map(path: PathLike) -> Estimate:
-    """Reads a map written by :func:`save_map`."""
+    """Reads a map written by :func:`save_map` (also one saved before past poses existed,
+    without ``past_poses``)."""
     with np.load(path) as data:
-        return Estimate(robot=data["robot"], landmarks=data["landmarks"],
-                        landmark_ids=data["landmark_ids"], covariance=data["covariance"])
+        values = {"robot": data["robot"], "landmarks": data["landmarks"],
+                  "landmark_ids": data["landmark_ids"], "joint_covariance": data["covariance"]}
+        if "past_poses" in data:
+            values.update(past_poses=data["past_poses"], past_pose_ids=data["past_pose_ids"])
+        return Estimate._from_core(values)
 
 
 def _plain(value: Any) -> Any:

@@ -18,6 +18,14 @@ from .config import SlamConfig
 __all__ = ["Estimate", "SlamStats", "DCSlamStats", "SlamFilter", "EkfSlam", "DCSlam"]
 
 
+def _no_past_poses() -> np.ndarray:
+    return np.zeros((0, 3))
+
+
+def _no_past_pose_ids() -> np.ndarray:
+    return np.zeros(0, dtype=np.int64)
+
+
 @dataclasses.dataclass(frozen=True)
 class Estimate:
     """The whole map in the frame of the first pose (API.md).
@@ -26,13 +34,38 @@ class Estimate:
         robot: (3,) current robot pose (x, y, phi).
         landmarks: (n, 2) feature positions, in state order.
         landmark_ids: (n,) int64 feature ids (the caller's ids in ``"known"`` mode).
-        covariance: (3 + 2n, 3 + 2n) full covariance, ordered [robot, lm 0, lm 1, ...].
+        covariance: (3 + 2n, 3 + 2n) full covariance, ordered [robot, lm 0, lm 1, ...]
+            (a view of the leading block of ``joint_covariance``).
+        past_poses: (m, 3) past robot poses (x, y, phi), oldest first: with
+            ``SlamConfig.keep_local_map_poses``, :class:`DCSlam` keeps the pose at every
+            local-map boundary (DESIGN.md §4.5); (0, 3) otherwise and for :class:`EkfSlam`.
+        past_pose_ids: (m,) int64, the step of each past pose: the number of ``predict``
+            calls made before it (so ``sim.poses[past_pose_ids]`` are their true poses).
+        joint_covariance: (3 + 2n + 3m, 3 + 2n + 3m) covariance of [robot, lm 0, ...,
+            past pose 0, ...]; ``covariance`` itself when m = 0 (the default).
     """
 
     robot: np.ndarray
     landmarks: np.ndarray
     landmark_ids: np.ndarray
     covariance: np.ndarray
+    past_poses: np.ndarray = dataclasses.field(default_factory=_no_past_poses)
+    past_pose_ids: np.ndarray = dataclasses.field(default_factory=_no_past_pose_ids)
+    joint_covariance: Optional[np.ndarray] = None
+
+    def __post_init__(self):
+        if self.joint_covariance is None:
+            if len(self.past_poses):
+                raise ValueError("Estimate: joint_covariance is required with past poses")
+            object.__setattr__(self, "joint_covariance", self.covariance)
+
+    @classmethod
+    def _from_core(cls, values: Dict[str, Any]) -> "Estimate":
+        """From the compiled filter's dict, whose joint covariance is viewed, not copied."""
+        values = dict(values)
+        joint = values.pop("joint_covariance")
+        d = 3 + 2 * len(values["landmarks"])
+        return cls(covariance=joint[:d, :d], joint_covariance=joint, **values)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,8 +144,9 @@ class SlamFilter:
         return self._core.update(z, R, landmark_ids)
 
     def estimate(self) -> Estimate:
-        """The whole map with its full covariance, in the frame of the first pose."""
-        return Estimate(**self._core.estimate())
+        """The whole map with its full covariance, in the frame of the first pose (with the
+        past poses kept by ``keep_local_map_poses``; see :class:`Estimate`)."""
+        return Estimate._from_core(self._core.estimate())
 
     def pose(self) -> np.ndarray:
         """(3,) current robot pose in the first pose's frame; cheap (no covariance)."""
@@ -221,6 +255,11 @@ class DCSlam(SlamFilter):
     that holds it now, and the id of a tentative feature removed by the spurious-measurement
     policy to -1 (see :class:`EkfSlam`; a closed local map keeps its tentative features, and
     the join with the next map drops those no feature of it matches).
+
+    With ``cfg.keep_local_map_poses`` every join keeps the first map's robot (the pose where
+    the second map started) as a past pose, so :meth:`estimate` also returns the robot pose
+    at every local-map boundary with its full covariance (``Estimate.past_poses``,
+    ``past_pose_ids``, ``joint_covariance``; docs/divide_and_conquer.md).
     """
 
     def __init__(self, cfg: Optional[SlamConfig] = None):

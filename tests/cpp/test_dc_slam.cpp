@@ -3,6 +3,8 @@
 #include <random>
 #include <set>
 
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
 #include <gtest/gtest.h>
 
 #include "dcslam/dc_slam.hpp"
@@ -21,7 +23,9 @@ using Index = Eigen::Index;
 // across it). With the 1.5 m grid spacing this keeps joins without ids unambiguous: the pair
 // standard deviation at a join is at most about 0.15 m, so the 0.99 gate (3.03 sigma) of a
 // landmark never reaches its neighbours.
-std::vector<SlamStep> linear_gaussian_run(int steps, std::uint64_t seed) {
+// `truth`, if given, receives the true pose after each step (truth[0] the start).
+std::vector<SlamStep> linear_gaussian_run(int steps, std::uint64_t seed,
+                                          std::vector<Vec3>* truth_poses = nullptr) {
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> normal;
   std::vector<Vec2> landmarks;
@@ -30,12 +34,14 @@ std::vector<SlamStep> linear_gaussian_run(int steps, std::uint64_t seed) {
   const Mat3 Q = Vec3(0.01, 0.0025, 0.0).asDiagonal();
   const Mat2 R = Vec2(0.01, 0.0025).asDiagonal();
   Vec3 truth = Vec3::Zero();
+  if (truth_poses) *truth_poses = {truth};
   std::vector<SlamStep> run;
   for (int k = 0; k < steps; ++k) {
     SlamStep step;
     const bool turn = (k % 15) == 14;
     const Vec3 u_true(1.0, 0.0, turn ? 1.5707963267948966 : 0.0);
     truth = compose(truth, u_true);
+    if (truth_poses) truth_poses->push_back(truth);
     step.u = u_true + Vec3(std::sqrt(Q(0, 0)) * normal(rng), std::sqrt(Q(1, 1)) * normal(rng), 0.0);
     step.Q = Q;
     std::vector<Vec2> z;
@@ -188,6 +194,212 @@ TEST(DcSlam, ImmediateAmortizedAndThreadedAreBitwiseIdentical) {
     EXPECT_EQ(results[m].landmark_ids, results[0].landmark_ids);
     EXPECT_TRUE((results[m].robot.array() == results[0].robot.array()).all());
   }
+}
+
+// ---------------------------------------------------------------------------------------
+// keep_local_map_poses against an independent oracle: one dense EKF over [robot, landmarks,
+// copies of the robot], which copies the robot pose into its state wherever a local map
+// closes (the state grows by [x; x_R], P by [P, P(:,R); P(R,:), P_RR]). In the linear-Gaussian
+// run this is the exact posterior of every past pose, with no local maps and no joins.
+class CloningEkf {
+ public:
+  explicit CloningEkf(int local_map_features) : local_map_features_(local_map_features) {}
+
+  void step(const SlamStep& s) {
+    predict(s.u, s.Q);
+    update(s);
+    // A local map closes once it holds local_map_features landmarks (known ids: every
+    // landmark seen since it opened).
+    seen_.insert(s.landmark_ids.begin(), s.landmark_ids.end());
+    if (static_cast<int>(seen_.size()) >= local_map_features_) {
+      clone_robot(steps_);
+      seen_.clear();
+    }
+  }
+
+  const Eigen::VectorXd& x() const { return x_; }
+  const Eigen::MatrixXd& P() const { return P_; }
+  const std::map<std::int64_t, Index>& landmark_rows() const { return landmark_row_; }
+  const std::vector<std::pair<std::int64_t, Index>>& clone_rows() const { return clone_rows_; }
+
+ private:
+  void predict(const Vec3& u, const Mat3& Q) {
+    Mat3 F, G;
+    x_.head<3>() = compose(x_.head<3>(), u, &F, &G);
+    P_.topRows<3>() = (F * P_.topRows<3>()).eval();
+    P_.leftCols<3>() = (P_.leftCols<3>() * F.transpose()).eval();
+    P_.topLeftCorner<3, 3>() += G * Q * G.transpose();
+    ++steps_;
+  }
+
+  void update(const SlamStep& s) {
+    const Vec3 robot = x_.head<3>();
+    const Index D = x_.size();
+    std::vector<Index> paired, fresh;
+    for (std::size_t k = 0; k < s.landmark_ids.size(); ++k) {
+      (landmark_row_.count(s.landmark_ids[k]) ? paired : fresh).push_back(static_cast<Index>(k));
+    }
+    const Index m = static_cast<Index>(paired.size());
+    if (m > 0) {
+      Eigen::MatrixXd H = Eigen::MatrixXd::Zero(2 * m, D), R = Eigen::MatrixXd::Zero(2 * m, 2 * m);
+      Eigen::VectorXd innovation(2 * m);
+      for (Index a = 0; a < m; ++a) {
+        const Index k = paired[static_cast<std::size_t>(a)];
+        const Index row = landmark_row_.at(s.landmark_ids[static_cast<std::size_t>(k)]);
+        Mat23 J_robot;
+        Mat2 J_point;
+        const Vec2 predicted = inverse_transform_point(robot, x_.segment<2>(row), &J_robot, &J_point);
+        innovation.segment<2>(2 * a) = s.z.row(k).transpose() - predicted;
+        H.block<2, 3>(2 * a, 0) = J_robot;
+        H.block<2, 2>(2 * a, row) = J_point;
+        R.block<2, 2>(2 * a, 2 * a) = s.R.size() == 1 ? s.R[0] : s.R[static_cast<std::size_t>(k)];
+      }
+      const Eigen::MatrixXd PHt = P_ * H.transpose();
+      const Eigen::MatrixXd S = H * PHt + R;
+      const Eigen::MatrixXd K = PHt * S.inverse();
+      x_ += K * innovation;
+      P_ -= K * S * K.transpose();
+      P_ = (0.5 * (P_ + P_.transpose())).eval();
+    }
+    for (Index k : fresh) {
+      Mat23 J_robot;
+      Mat2 J_z;
+      const Vec2 f = transform_point(x_.head<3>(), s.z.row(k).transpose(), &J_robot, &J_z);
+      const Mat2 R = s.R.size() == 1 ? s.R[0] : s.R[static_cast<std::size_t>(k)];
+      const Index row = grow(2);
+      x_.segment<2>(row) = f;
+      P_.block(row, 0, 2, row) = J_robot * P_.topRows<3>().leftCols(row);
+      P_.block(0, row, row, 2) = P_.block(row, 0, 2, row).transpose();
+      P_.block<2, 2>(row, row) =
+          J_robot * P_.topLeftCorner<3, 3>() * J_robot.transpose() + J_z * R * J_z.transpose();
+      landmark_row_[s.landmark_ids[static_cast<std::size_t>(k)]] = row;
+    }
+  }
+
+  void clone_robot(std::int64_t id) {
+    const Index row = grow(3);
+    x_.segment<3>(row) = x_.head<3>();
+    P_.block(row, 0, 3, row) = P_.topRows<3>().leftCols(row);
+    P_.block(0, row, row, 3) = P_.block(row, 0, 3, row).transpose();
+    P_.block<3, 3>(row, row) = P_.topLeftCorner<3, 3>();
+    clone_rows_.emplace_back(id, row);
+  }
+
+  Index grow(Index extra) {
+    const Index row = x_.size();
+    x_.conservativeResize(row + extra);
+    P_.conservativeResize(row + extra, row + extra);
+    return row;
+  }
+
+  int local_map_features_;
+  std::int64_t steps_ = 0;
+  std::set<std::int64_t> seen_;
+  Eigen::VectorXd x_ = Eigen::VectorXd::Zero(3);
+  Eigen::MatrixXd P_ = Eigen::MatrixXd::Zero(3, 3);
+  std::map<std::int64_t, Index> landmark_row_;
+  std::vector<std::pair<std::int64_t, Index>> clone_rows_;  // (step, row), oldest first
+};
+
+// Max |a - oracle| relative to the oracle's largest entry, over the state and the joint
+// covariance (landmarks matched by id, past poses by id), for the mean and covariance apart.
+std::pair<double, double> relative_difference(const Estimate& a, const CloningEkf& oracle) {
+  std::vector<Index> rows = {0, 1, 2};  // oracle rows, in a's state order
+  for (std::int64_t id : a.landmark_ids) {
+    const Index row = oracle.landmark_rows().at(id);
+    rows.push_back(row);
+    rows.push_back(row + 1);
+  }
+  std::map<std::int64_t, Index> clone_row(oracle.clone_rows().begin(), oracle.clone_rows().end());
+  for (std::int64_t id : a.past_pose_ids) {
+    for (Index c = 0; c < 3; ++c) rows.push_back(clone_row.at(id) + c);
+  }
+  const Index d = static_cast<Index>(rows.size());
+  EXPECT_EQ(a.covariance.rows(), d);
+  EXPECT_EQ(oracle.x().size(), d);
+  Eigen::VectorXd xa(d);
+  xa << a.robot, Eigen::Map<const Eigen::VectorXd>(a.landmarks.data(), a.landmarks.size()),
+      Eigen::Map<const Eigen::VectorXd>(a.past_poses.data(), a.past_poses.size());
+  double dx = 0, dP = 0;
+  for (Index i = 0; i < d; ++i) {
+    dx = std::max(dx, std::abs(xa(i) - oracle.x()(rows[static_cast<std::size_t>(i)])));
+    for (Index j = 0; j < d; ++j) {
+      dP = std::max(dP, std::abs(a.covariance(i, j) - oracle.P()(rows[static_cast<std::size_t>(i)],
+                                                                  rows[static_cast<std::size_t>(j)])));
+    }
+  }
+  return {dx / oracle.x().cwiseAbs().maxCoeff(), dP / oracle.P().cwiseAbs().maxCoeff()};
+}
+
+class DcSlamPastPoses : public ::testing::TestWithParam<DcCase> {};
+
+TEST_P(DcSlamPastPoses, EqualTheCloningEkfAtEveryStepAndSitNearTheTruth) {
+  std::vector<Vec3> truth;
+  const auto run = linear_gaussian_run(130, 3, &truth);
+  SlamConfig config = mode_config(GetParam().local_map_features, GetParam().mode);
+  config.keep_local_map_poses = true;
+  DCSlam dc(config);
+  CloningEkf oracle(GetParam().local_map_features);
+  for (std::size_t k = 0; k < run.size(); ++k) {
+    run_steps(dc, {run[k]});
+    oracle.step(run[k]);
+    if (k % 20 != 19 && k + 1 != run.size()) continue;
+    const Estimate est = dc.estimate();  // anytime: pending joins done on copies
+    std::vector<std::int64_t> oracle_ids;
+    for (const auto& clone : oracle.clone_rows()) oracle_ids.push_back(clone.first);
+    EXPECT_EQ(est.past_pose_ids, oracle_ids) << k;
+    const auto [dx, dP] = relative_difference(est, oracle);
+    EXPECT_LT(dx, 1e-9) << k;
+    EXPECT_LT(dP, 1e-9) << k;
+  }
+  const Estimate est = dc.estimate();
+  const Index m = est.past_poses.rows();
+  EXPECT_EQ(static_cast<double>(m), dc.stats().counters.at("local_maps_closed"));
+  EXPECT_GT(m, 3);
+  const Index poses_begin = 3 + 2 * static_cast<Index>(est.landmark_ids.size());
+  for (Index q = 0; q < m; ++q) {
+    // Ground truth: the known heading exactly, the position well within its covariance.
+    const Vec3 true_pose = truth[static_cast<std::size_t>(est.past_pose_ids[static_cast<std::size_t>(q)])];
+    const Vec3 pose = est.past_poses.row(q).transpose();
+    EXPECT_LT(std::abs(wrap_angle(pose.z() - true_pose.z())), 1e-9);
+    const Mat2 covariance = est.covariance.block<2, 2>(poses_begin + 3 * q, poses_begin + 3 * q);
+    const Vec2 error = pose.head<2>() - true_pose.head<2>();
+    EXPECT_LT(error.dot(covariance.ldlt().solve(error)), 25.0) << q;
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    LocalMapSizes, DcSlamPastPoses,
+    ::testing::Values(DcCase{4, Mode::Immediate}, DcCase{10, Mode::Immediate},
+                      DcCase{25, Mode::Immediate}, DcCase{4, Mode::Amortized},
+                      DcCase{10, Mode::Amortized}, DcCase{25, Mode::Amortized},
+                      DcCase{4, Mode::Threaded}, DcCase{10, Mode::Threaded},
+                      DcCase{25, Mode::Threaded}));
+
+TEST(DcSlam, PastPosesAreBitwiseTheSameInEveryJoinMode) {
+  const auto run = linear_gaussian_run(150, 5);
+  std::vector<Estimate> results;
+  for (Mode mode : {Mode::Immediate, Mode::Amortized, Mode::Threaded}) {
+    SlamConfig config = mode_config(8, mode);
+    config.keep_local_map_poses = true;
+    DCSlam dc(config);
+    run_steps(dc, run);
+    dc.finish_joins();
+    results.push_back(dc.estimate());
+  }
+  ASSERT_GT(results[0].past_poses.rows(), 5);
+  for (std::size_t m = 1; m < results.size(); ++m) {
+    EXPECT_EQ(results[m].past_pose_ids, results[0].past_pose_ids);
+    EXPECT_TRUE((results[m].past_poses.array() == results[0].past_poses.array()).all());
+    EXPECT_TRUE((results[m].covariance.array() == results[0].covariance.array()).all());
+  }
+  // Off by default: no past poses, the covariance is [robot, landmarks] only.
+  DCSlam plain(mode_config(8, Mode::Immediate));
+  run_steps(plain, run);
+  const Estimate est = plain.estimate();
+  EXPECT_EQ(est.past_poses.rows(), 0);
+  EXPECT_TRUE(est.past_pose_ids.empty());
+  EXPECT_EQ(est.covariance.rows(), 3 + 2 * static_cast<Index>(est.landmark_ids.size()));
 }
 
 TEST(DcSlam, StackFollowsAlgorithm2) {

@@ -89,5 +89,39 @@ TEST(GaussianMap, SwapRemoveFeatureMovesTheLastFeatureIntoTheHole) {
   EXPECT_THROW(map.swap_remove_feature(2), std::exception);
 }
 
+// Past poses sit after the features: features keep their offsets, poses are addressed from
+// the end; removing features keeps the poses; a map with poses refuses to grow or reorder.
+TEST(GaussianMap, PastPosesFollowTheFeatures) {
+  GaussianMap map = GaussianMap::uninitialized(4, 2);
+  EXPECT_EQ(map.dim(), 3 + 8 + 6);
+  EXPECT_EQ(map.num_features(), 4);
+  EXPECT_EQ(map.num_poses(), 2);
+  EXPECT_EQ(map.pose_offset(0), 11);
+  EXPECT_EQ(map.pose_offset(1), 14);
+  for (Eigen::Index i = 0; i < map.dim(); ++i) {
+    map.x()(i) = i;
+    for (Eigen::Index j = 0; j < map.dim(); ++j) map.P()(i, j) = 1000.0 * std::min(i, j) + std::max(i, j);
+  }
+  map.ids() = {100, 101, 102, 103};
+  map.pose_ids() = {7, 9};
+  EXPECT_EQ(map.pose(1), Vec3(14, 15, 16));
+  const GaussianMap original = map;
+  map.remove_features({1, 2});
+  EXPECT_EQ(map.num_features(), 2);
+  EXPECT_EQ(map.num_poses(), 2);
+  EXPECT_EQ(map.pose_ids(), (std::vector<std::int64_t>{7, 9}));
+  const std::vector<Eigen::Index> keep = {0, 1, 2, 3, 4, 9, 10, 11, 12, 13, 14, 15, 16};
+  ASSERT_EQ(map.dim(), static_cast<Eigen::Index>(keep.size()));
+  for (std::size_t i = 0; i < keep.size(); ++i) {
+    EXPECT_EQ(map.x()(i), original.x()(keep[i]));
+    for (std::size_t j = 0; j < keep.size(); ++j) EXPECT_EQ(map.P()(i, j), original.P()(keep[i], keep[j]));
+  }
+  EXPECT_EQ(map.pose(0), original.pose(0));
+  EXPECT_THROW(map.append_feature(Vec2(1, 2), 5), std::exception);
+  EXPECT_THROW(map.swap_remove_feature(0), std::exception);
+  EXPECT_THROW(map.resize(map.dim() + 2), std::exception);
+  EXPECT_THROW(GaussianMap::uninitialized(-1), std::exception);
+}
+
 }  // namespace
 }  // namespace dcslam

@@ -29,24 +29,112 @@ GaussianMap random_map(std::mt19937_64& rng, const std::vector<std::int64_t>& id
   return map;
 }
 
-// The textbook join of DESIGN.md §4, dense: stack, move m2 with the full Jacobian, impose the
-// matched pairs with an EKF update (S = H P H', no R), then drop R1, the matched f'_j and
-// the m1 features in `dropped_first` (marginalising = deleting rows and columns of the
-// updated P) and reorder to [R2'; F1 kept; F2' unmatched].
+// `map` with `poses` past poses appended (ids first_id, first_id + 1, ...): random poses,
+// correlated with the map as q = B x + e would be (so P stays positive definite).
+GaussianMap with_past_poses(const GaussianMap& map, std::mt19937_64& rng, Index poses,
+                            std::int64_t first_id) {
+  std::normal_distribution<double> normal;
+  std::uniform_real_distribution<double> uniform(-20, 20);
+  GaussianMap out = GaussianMap::uninitialized(map.num_features(), poses);
+  const Index d = map.dim(), e = 3 * poses;
+  Eigen::MatrixXd B(e, d), E(e, e);
+  for (Index i = 0; i < e; ++i) {
+    for (Index j = 0; j < d; ++j) B(i, j) = 0.1 * normal(rng);
+    for (Index j = 0; j < e; ++j) E(i, j) = 0.1 * normal(rng);
+  }
+  out.x().head(d) = map.x();
+  for (Index q = 0; q < poses; ++q) {
+    out.x().segment<3>(d + 3 * q) = Vec3(uniform(rng), uniform(rng), uniform(rng) / 14.0);
+  }
+  out.P().topLeftCorner(d, d) = map.P();
+  out.P().block(0, d, d, e) = map.P() * B.transpose();
+  out.P().block(d, 0, e, d) = B * map.P();
+  out.P().bottomRightCorner(e, e) =
+      B * map.P() * B.transpose() + E * E.transpose() + 0.05 * Eigen::MatrixXd::Identity(e, e);
+  out.ids() = map.ids();
+  for (Index q = 0; q < poses; ++q) out.pose_ids()[static_cast<std::size_t>(q)] = first_id + q;
+  return out;
+}
+
+// The joined map's state in the stacked vector [m1.x; m2.x]: [R2'; F1 kept; F2' unmatched;
+// Q1; R1 if kept; Q2'], with the result's feature and pose ids.
+struct JoinedOrder {
+  std::vector<Index> rows;
+  std::vector<std::int64_t> ids, pose_ids;
+  Index features = 0, poses = 0;
+};
+
+JoinedOrder joined_order(const GaussianMap& m1, const GaussianMap& m2,
+                         const std::vector<std::pair<Index, Index>>& pairs,
+                         const std::set<Index>& dropped_first, const std::set<Index>& dropped_second,
+                         bool keep_first_robot, std::int64_t first_robot_id) {
+  const Index d1 = m1.dim();
+  std::set<Index> matched;
+  for (const auto& p : pairs) matched.insert(p.second);
+  JoinedOrder order;
+  order.rows = {d1, d1 + 1, d1 + 2};
+  for (Index i = 0; i < m1.num_features(); ++i) {
+    if (dropped_first.count(i)) continue;
+    order.rows.push_back(3 + 2 * i);
+    order.rows.push_back(4 + 2 * i);
+    order.ids.push_back(m1.ids()[i]);
+  }
+  for (Index j = 0; j < m2.num_features(); ++j) {
+    if (matched.count(j) || dropped_second.count(j)) continue;
+    order.rows.push_back(d1 + 3 + 2 * j);
+    order.rows.push_back(d1 + 4 + 2 * j);
+    order.ids.push_back(m2.ids()[j]);
+  }
+  const auto add_pose = [&](Index row, std::int64_t id) {
+    for (Index c = 0; c < 3; ++c) order.rows.push_back(row + c);
+    order.pose_ids.push_back(id);
+  };
+  for (Index q = 0; q < m1.num_poses(); ++q) add_pose(m1.pose_offset(q), m1.pose_ids()[q]);
+  if (keep_first_robot) add_pose(0, first_robot_id);
+  for (Index q = 0; q < m2.num_poses(); ++q) add_pose(d1 + m2.pose_offset(q), m2.pose_ids()[q]);
+  order.features = static_cast<Index>(order.ids.size());
+  order.poses = static_cast<Index>(order.pose_ids.size());
+  return order;
+}
+
+// The rows `order` selects of (y, P), headings wrapped.
+GaussianMap select(const JoinedOrder& order, const Eigen::VectorXd& y, const Eigen::MatrixXd& P) {
+  GaussianMap out = GaussianMap::uninitialized(order.features, order.poses);
+  for (std::size_t a = 0; a < order.rows.size(); ++a) {
+    out.x()(a) = y(order.rows[a]);
+    for (std::size_t b = 0; b < order.rows.size(); ++b) out.P()(a, b) = P(order.rows[a], order.rows[b]);
+  }
+  out.x()(2) = wrap_angle(out.x()(2));
+  for (Index q = 0; q < out.num_poses(); ++q) {
+    out.x()(out.pose_offset(q) + 2) = wrap_angle(out.x()(out.pose_offset(q) + 2));
+  }
+  out.ids() = order.ids;
+  out.pose_ids() = order.pose_ids;
+  return out;
+}
+
+// The textbook join of DESIGN.md §4, dense: stack, move m2 (robot, features and past poses)
+// with the full Jacobian, impose the matched pairs with an EKF update (S = H P H', no R), then
+// keep the rows joined_order() lists (marginalising = deleting rows and columns of the
+// updated P): R1 goes unless kept, so do the matched f'_j and the dropped tentative features.
 GaussianMap dense_join(const GaussianMap& m1, const GaussianMap& m2,
                        const std::vector<std::pair<Index, Index>>& pairs,
                        const std::set<Index>& dropped_first = {},
-                       const std::set<Index>& dropped_second = {}) {
+                       const std::set<Index>& dropped_second = {},
+                       bool keep_first_robot = false, std::int64_t first_robot_id = -1) {
   const Index d1 = m1.dim(), d2 = m2.dim(), D = d1 + d2;
   const Vec3 T = m1.robot();
   Eigen::VectorXd z(D);
   Eigen::MatrixXd J = Eigen::MatrixXd::Zero(D, D);
   z.head(d1) = m1.x();
   J.topLeftCorner(d1, d1).setIdentity();
-  Mat3 J_T, J_e;
-  z.segment<3>(d1) = compose(T, m2.robot(), &J_T, &J_e);
-  J.block<3, 3>(d1, 0) = J_T;
-  J.block<3, 3>(d1, d1) = J_e;
+  const auto move_pose = [&](Index row) {
+    Mat3 J_T, J_e;
+    z.segment<3>(row) = compose(T, m2.x().segment<3>(row - d1), &J_T, &J_e);
+    J.block<3, 3>(row, 0) = J_T;
+    J.block<3, 3>(row, row) = J_e;
+  };
+  move_pose(d1);
   for (Index j = 0; j < m2.num_features(); ++j) {
     Mat23 J_Tp;
     Mat2 J_p;
@@ -55,6 +143,7 @@ GaussianMap dense_join(const GaussianMap& m1, const GaussianMap& m2,
     J.block<2, 3>(row, 0) = J_Tp;
     J.block<2, 2>(row, row) = J_p;
   }
+  for (Index q = 0; q < m2.num_poses(); ++q) move_pose(d1 + m2.pose_offset(q));
   Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(D, D);
   P0.topLeftCorner(d1, d1) = m1.P();
   P0.bottomRightCorner(d2, d2) = m2.P();
@@ -71,36 +160,15 @@ GaussianMap dense_join(const GaussianMap& m1, const GaussianMap& m2,
     z -= K * (H * z);
     P -= K * S * K.transpose();
   }
-  std::set<Index> matched;
-  for (const auto& p : pairs) matched.insert(p.second);
-  std::vector<Index> order = {d1, d1 + 1, d1 + 2};
-  std::vector<std::int64_t> ids;
-  for (Index i = 0; i < m1.num_features(); ++i) {
-    if (dropped_first.count(i)) continue;
-    order.push_back(3 + 2 * i);
-    order.push_back(4 + 2 * i);
-    ids.push_back(m1.ids()[i]);
-  }
-  for (Index j = 0; j < m2.num_features(); ++j) {
-    if (matched.count(j) || dropped_second.count(j)) continue;
-    order.push_back(d1 + 3 + 2 * j);
-    order.push_back(d1 + 4 + 2 * j);
-    ids.push_back(m2.ids()[j]);
-  }
-  GaussianMap out;
-  out.resize(static_cast<Index>(order.size()));
-  for (std::size_t a = 0; a < order.size(); ++a) {
-    out.x()(a) = z(order[a]);
-    for (std::size_t b = 0; b < order.size(); ++b) out.P()(a, b) = P(order[a], order[b]);
-  }
-  out.x()(2) = wrap_angle(out.x()(2));
-  out.ids() = ids;
-  return out;
+  return select(joined_order(m1, m2, pairs, dropped_first, dropped_second, keep_first_robot,
+                             first_robot_id),
+                z, P);
 }
 
 void expect_maps_equal(const GaussianMap& a, const GaussianMap& b, double tol) {
   ASSERT_EQ(a.dim(), b.dim());
   EXPECT_EQ(a.ids(), b.ids());
+  EXPECT_EQ(a.pose_ids(), b.pose_ids());
   EXPECT_LT((a.x() - b.x()).cwiseAbs().maxCoeff(), tol);
   EXPECT_LT((a.P() - b.P()).cwiseAbs().maxCoeff(), tol * std::max(1.0, b.P().cwiseAbs().maxCoeff()));
 }
@@ -333,21 +401,28 @@ TEST(MapJoining, SmallWorkUnitsGiveTheTextbookJoin) {
 // prior x = [m1.x; m2.x] ~ N(x0, blkdiag(P1, P2)) under f_i = R1 ⊕ f'_j, by the iterated EKF
 // on the whole stacked vector with central-difference Jacobians, mapped into B1.
 
-// g: identity on m1, R1 ⊕ · on m2's robot and features (written out, not the library's ⊕).
-Eigen::VectorXd oracle_to_base_one(const Eigen::VectorXd& x, Index d1) {
+// g: identity on m1, R1 ⊕ · on m2's robot, features and past poses (these from
+// second_poses_begin on, in m2's rows) (written out, not the library's ⊕).
+Eigen::VectorXd oracle_to_base_one(const Eigen::VectorXd& x, Index d1, Index second_poses_begin) {
   const double c = std::cos(x(2)), s = std::sin(x(2));
   Eigen::VectorXd y = x;
-  for (Index a = d1; a + 1 < x.size(); a += (a == d1 ? 3 : 2)) {
+  const auto move_point = [&](Index a) {
     y(a) = x(0) + c * x(a) - s * x(a + 1);
     y(a + 1) = x(1) + s * x(a) + c * x(a + 1);
-  }
-  y(d1 + 2) = x(2) + x(d1 + 2);
+  };
+  const auto move_pose = [&](Index a) {
+    move_point(a);
+    y(a + 2) = x(2) + x(a + 2);
+  };
+  move_pose(d1);
+  for (Index a = d1 + 3; a < d1 + second_poses_begin; a += 2) move_point(a);
+  for (Index a = d1 + second_poses_begin; a < x.size(); a += 3) move_pose(a);
   return y;
 }
 
-Eigen::VectorXd oracle_constraints(const Eigen::VectorXd& x, Index d1,
+Eigen::VectorXd oracle_constraints(const Eigen::VectorXd& x, Index d1, Index second_poses_begin,
                                    const std::vector<std::pair<Index, Index>>& pairs) {
-  const Eigen::VectorXd y = oracle_to_base_one(x, d1);
+  const Eigen::VectorXd y = oracle_to_base_one(x, d1, second_poses_begin);
   Eigen::VectorXd c(2 * static_cast<Index>(pairs.size()));
   for (std::size_t k = 0; k < pairs.size(); ++k) {
     c.segment<2>(2 * static_cast<Index>(k)) =
@@ -362,7 +437,8 @@ struct OracleJoin {
 };
 
 OracleJoin oracle_iterated_join(const GaussianMap& m1, const GaussianMap& m2,
-                                const std::vector<std::pair<Index, Index>>& pairs) {
+                                const std::vector<std::pair<Index, Index>>& pairs,
+                                bool keep_first_robot = false, std::int64_t first_robot_id = -1) {
   using testing::numeric_jacobian;
   const Index d1 = m1.dim(), d2 = m2.dim(), D = d1 + d2;
   Eigen::VectorXd x0(D);
@@ -370,8 +446,11 @@ OracleJoin oracle_iterated_join(const GaussianMap& m1, const GaussianMap& m2,
   Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(D, D);
   P0.topLeftCorner(d1, d1) = m1.P();
   P0.bottomRightCorner(d2, d2) = m2.P();
-  const auto c = [&](const Eigen::VectorXd& x) { return oracle_constraints(x, d1, pairs); };
-  const auto g = [&](const Eigen::VectorXd& x) { return oracle_to_base_one(x, d1); };
+  const Index second_poses_begin = GaussianMap::feature_offset(m2.num_features());
+  const auto c = [&](const Eigen::VectorXd& x) {
+    return oracle_constraints(x, d1, second_poses_begin, pairs);
+  };
+  const auto g = [&](const Eigen::VectorXd& x) { return oracle_to_base_one(x, d1, second_poses_begin); };
   Eigen::VectorXd x = x0;
   for (int it = 0; it < 100; ++it) {
     const Eigen::MatrixXd H = numeric_jacobian(c, x);
@@ -389,30 +468,8 @@ OracleJoin oracle_iterated_join(const GaussianMap& m1, const GaussianMap& m2,
   const Eigen::VectorXd y = g(x);
   const Eigen::MatrixXd Py = G * P * G.transpose();
 
-  // [R2'; F1; F2' unmatched], as the join orders its result.
-  std::set<Index> matched;
-  for (const auto& p : pairs) matched.insert(p.second);
-  std::vector<Index> order = {d1, d1 + 1, d1 + 2};
-  std::vector<std::int64_t> ids;
-  for (Index i = 0; i < m1.num_features(); ++i) {
-    order.push_back(3 + 2 * i);
-    order.push_back(4 + 2 * i);
-    ids.push_back(m1.ids()[i]);
-  }
-  for (Index j = 0; j < m2.num_features(); ++j) {
-    if (matched.count(j)) continue;
-    order.push_back(d1 + 3 + 2 * j);
-    order.push_back(d1 + 4 + 2 * j);
-    ids.push_back(m2.ids()[j]);
-  }
   OracleJoin out;
-  out.map.resize(static_cast<Index>(order.size()));
-  for (std::size_t a = 0; a < order.size(); ++a) {
-    out.map.x()(a) = y(order[a]);
-    for (std::size_t b = 0; b < order.size(); ++b) out.map.P()(a, b) = Py(order[a], order[b]);
-  }
-  out.map.x()(2) = wrap_angle(out.map.x()(2));
-  out.map.ids() = ids;
+  out.map = select(joined_order(m1, m2, pairs, {}, {}, keep_first_robot, first_robot_id), y, Py);
   out.max_constraint = c(x).cwiseAbs().maxCoeff();
   return out;
 }
@@ -569,7 +626,7 @@ TEST(JoinFrame, LinearisedElsewhereGivesTheLinearisedMeansAndCovariance) {
   x0 << m1.x(), m2.x();
   x_at << m1.x(), second_at;
   x_at.head<3>() = robot_at;
-  const auto g = [&](const Eigen::VectorXd& x) { return oracle_to_base_one(x, d1); };
+  const auto g = [&](const Eigen::VectorXd& x) { return oracle_to_base_one(x, d1, d2); };
   const Eigen::MatrixXd G = testing::numeric_jacobian(g, x_at);
   const Eigen::VectorXd y = g(x_at) + G * (x0 - x_at);
   Eigen::MatrixXd P0 = Eigen::MatrixXd::Zero(D, D);
@@ -588,6 +645,109 @@ TEST(JoinFrame, LinearisedElsewhereGivesTheLinearisedMeansAndCovariance) {
     }
   }
   EXPECT_THROW(JoinFrame(m1, m2, robot_at, second_at.head(d2 - 1)), InvalidArgument);
+}
+
+// ---------------------------------------------------------------------------------------
+// Past poses (DESIGN.md §4.5): both maps already hold some, R1 is kept or not. The textbook
+// oracle moves m2's poses into B1 like its robot, never constrains them, and keeps
+// [R2' | F1 | F2' | Q1 | R1 | Q2'].
+struct PosesCase {
+  int n1, n2, shared, q1, q2;
+  bool keep_first_robot;
+  Index block_columns, work_unit;
+};
+
+class MapJoiningPosesTest : public ::testing::TestWithParam<PosesCase> {};
+
+TEST_P(MapJoiningPosesTest, EqualsTheDenseTextbookJoinAndSlicingChangesNoBit) {
+  const PosesCase c = GetParam();
+  std::mt19937_64 rng(2000 + c.n1 * 31 + c.n2 * 7 + c.q1 * 3 + c.q2);
+  std::vector<std::int64_t> ids1, ids2;
+  for (int i = 0; i < c.n1; ++i) ids1.push_back(i);
+  for (int j = 0; j < c.n2; ++j) ids2.push_back(j < c.shared ? (c.n1 - 1 - 2 * j) : 1000 + j);
+  std::shuffle(ids2.begin(), ids2.end(), rng);
+  const auto m1 = std::make_shared<const GaussianMap>(with_past_poses(random_map(rng, ids1), rng, c.q1, 10));
+  const auto m2 = std::make_shared<const GaussianMap>(with_past_poses(random_map(rng, ids2), rng, c.q2, 30));
+  JoinOptions options;
+  options.block_columns = c.block_columns;
+  options.work_unit = c.work_unit;
+  options.max_iterations = 1;  // the textbook join linearises once, at the prior means
+  options.keep_first_robot = c.keep_first_robot;
+  options.first_robot_id = 20;
+  MapJoin at_once(m1, m2, options);
+  at_once.finish();
+  EXPECT_EQ(at_once.report().pairings, c.shared);
+  MapJoin sliced(m1, m2, options);
+  EXPECT_GT(sliced.advance(1), 0);
+  while (!sliced.done()) {
+    const std::int64_t before = sliced.remaining_work();
+    EXPECT_GT(sliced.advance(1), 0);
+    EXPECT_LE(sliced.remaining_work(), before);
+  }
+  EXPECT_EQ(sliced.report().work_units, at_once.report().work_units);
+  const GaussianMap a = at_once.take_result(), b = sliced.take_result();
+  const int kept = c.keep_first_robot ? 1 : 0;
+  ASSERT_EQ(a.num_poses(), c.q1 + kept + c.q2);
+  EXPECT_EQ(a.num_features(), c.n1 + c.n2 - c.shared);
+  expect_maps_equal(a, dense_join(*m1, *m2, associate_by_id(*m1, *m2), {}, {}, c.keep_first_robot, 20),
+                    1e-9);
+  EXPECT_TRUE(a.P().isApprox(a.P().transpose(), 1e-12));
+  std::vector<std::int64_t> expected_ids;
+  for (int q = 0; q < c.q1; ++q) expected_ids.push_back(10 + q);
+  if (c.keep_first_robot) expected_ids.push_back(20);
+  for (int q = 0; q < c.q2; ++q) expected_ids.push_back(30 + q);
+  EXPECT_EQ(a.pose_ids(), expected_ids);
+  EXPECT_EQ(a.pose_ids(), b.pose_ids());
+  EXPECT_EQ(a.ids(), b.ids());
+  EXPECT_TRUE((a.x().array() == b.x().array()).all());
+  EXPECT_TRUE((a.P().array() == b.P().array()).all());
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Cases, MapJoiningPosesTest,
+    ::testing::Values(PosesCase{5, 4, 2, 2, 3, true, 64, Index{1} << 20},
+                      PosesCase{5, 4, 2, 0, 0, true, 4, Index{1} << 20},
+                      PosesCase{12, 9, 3, 1, 2, true, 2, Index{1} << 20},
+                      PosesCase{12, 9, 3, 3, 1, false, 6, Index{1} << 20},
+                      PosesCase{0, 6, 0, 2, 1, true, 4, Index{1} << 20},
+                      PosesCase{6, 0, 0, 1, 2, true, 4, Index{1} << 20},
+                      // Row tiles of 64 that start on every parity and split poses.
+                      PosesCase{40, 35, 12, 3, 4, true, 4, 64},
+                      PosesCase{40, 35, 12, 5, 0, true, 6, 64},
+                      PosesCase{30, 30, 0, 4, 5, false, 2, 64}));
+
+// The iterated join moves m2's poses by the final linearisation, like its other elements: it
+// is the constrained MAP of the stacked prior with every pose kept.
+TEST(IteratedJoin, WithPastPosesEqualsTheDenseConstrainedMap) {
+  for (std::uint64_t seed : {2, 5}) {
+    auto [plain1, plain2] = nonlinear_maps(seed, 3);
+    std::mt19937_64 rng(seed);
+    const GaussianMap m1 = with_past_poses(plain1, rng, 2, 0);
+    const GaussianMap m2 = with_past_poses(plain2, rng, 3, 3);
+    const auto pairs = associate_by_id(m1, m2);
+    const OracleJoin oracle = oracle_iterated_join(m1, m2, pairs, true, 2);
+    ASSERT_LT(oracle.max_constraint, 1e-9);
+    JoinOptions options;
+    options.block_columns = 4;
+    options.max_iterations = 50;
+    options.keep_first_robot = true;
+    options.first_robot_id = 2;
+    JoinReport report;
+    const GaussianMap joined = join_maps(m1, m2, options, &report);
+    EXPECT_GT(report.iterations, 2);
+    ASSERT_EQ(joined.num_poses(), 6);
+    EXPECT_EQ(joined.pose_ids(), (std::vector<std::int64_t>{0, 1, 2, 3, 4, 5}));
+    expect_maps_equal(joined, oracle.map, 1e-8);
+
+    const auto first = std::make_shared<const GaussianMap>(m1);
+    const auto second = std::make_shared<const GaussianMap>(m2);
+    MapJoin sliced(first, second, options);
+    while (!sliced.done()) sliced.advance(3);
+    EXPECT_EQ(sliced.report().iterations, report.iterations);
+    const GaussianMap b = sliced.take_result();
+    EXPECT_TRUE((joined.x().array() == b.x().array()).all());
+    EXPECT_TRUE((joined.P().array() == b.P().array()).all());
+  }
 }
 
 }  // namespace

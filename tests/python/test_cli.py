@@ -31,11 +31,12 @@ ISAM_FILE = Path(__file__).parent.parent / "data" / "isam_victoria_park.txt.gz"
 
 def test_run_isam_writes_outputs(tmp_path):
     out = run("run", "isam", str(ISAM_FILE), "--max-steps", "300", "--filter", "both", "--output", str(tmp_path),
-              "--local-map-features", "10", "--join-iterations", "3", "--no-progress")
+              "--local-map-features", "10", "--join-iterations", "3", "--keep-local-map-poses", "--no-progress")
     assert out.returncode == 0, out.stdout + out.stderr
     assert "features in the final map" in out.stdout and str(tmp_path) in out.stdout
     dc_stats = json.loads((tmp_path / "stats_dc.json").read_text())
     assert dc_stats["config"]["join_iterations"] == 3
+    assert dc_stats["config"]["keep_local_map_poses"] is True
     assert dc_stats["joins"] and all(j["iterations"] <= 3 for j in dc_stats["joins"])
     for name in ("ekf", "dc"):
         t, poses = io.read_tum(tmp_path / f"trajectory_{name}.tum")
@@ -44,6 +45,9 @@ def test_run_isam_writes_outputs(tmp_path):
         estimate = io.load_map(tmp_path / f"map_{name}.npz")
         n = len(estimate.landmarks)
         assert n > 0 and estimate.covariance.shape == (3 + 2 * n, 3 + 2 * n)
+        m = len(estimate.past_poses)  # the EKF keeps no past poses; D&C one per local map closed
+        assert (m > 0) == (name == "dc") and estimate.joint_covariance.shape == (3 + 2 * n + 3 * m,) * 2
+        assert np.all(np.diff(estimate.past_pose_ids) > 0) and np.all(estimate.past_pose_ids < 300)
         stats = json.loads((tmp_path / f"stats_{name}.json").read_text())
         assert stats["summary"]["steps"] == 300 and stats["summary"]["map_size"] == n
         assert (tmp_path / f"map_{name}.png").stat().st_size > 0
