@@ -2,13 +2,13 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include <Eigen/Eigenvalues>
 
 #include "dcslam/chi_square.hpp"
 #include "dcslam/jcbb.hpp"
 #include "dcslam/rjc.hpp"
-#include "dcslam/spatial_hash.hpp"
 
 namespace dcslam {
 
@@ -44,76 +44,158 @@ Mat2 JoinPairingModel::covariance(const Pairing& a, const Pairing& b) const {
 }
 
 JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options) {
-  const GaussianMap& m1 = frame.first();
-  const GaussianMap& m2 = frame.second();
-  const Index n1 = m1.num_features(), n2 = m2.num_features();
-  JoinAssociationResult result;
-  if (n1 == 0 || n2 == 0) return result;
+  JoinAssociator associator(frame, options);
+  while (!associator.done()) associator.advance(std::numeric_limits<std::int64_t>::max());
+  return associator.result();
+}
 
-  // Candidate search radius: a pair (i, j) passes the gate only if |f'_j - f_i| <=
-  // sqrt(gate) * (sigma_i + sigma_j), with sigma the largest standard deviation of each
-  // (feature_sigma included: sqrt(a^2 + s^2) <= a + s).
-  const double pruning_confidence = candidate_confidence(options.gate_confidence);
-  const double gate_radius = std::sqrt(chi2_quantile(2, pruning_confidence));
-  double sigma_first = 0.0;
-  for (Index i = 0; i < n1; ++i) sigma_first = std::max(sigma_first, largest_std(frame.first_first(i, i)));
-  sigma_first += options.feature_sigma;
-  std::vector<double> sigma_second(static_cast<std::size_t>(n2));
+JoinAssociator::JoinAssociator(const JoinFrame& frame, const JoinOptions& options)
+    : frame_(frame), options_(options), model_(frame, options.feature_sigma) {}
+
+std::int64_t JoinAssociator::advance(std::int64_t budget) {
+  std::int64_t spent = 0;
+  while (stage_ != Stage::Done && (spent == 0 || spent < budget)) {
+    switch (stage_) {
+      case Stage::Prepare:
+        spent += prepare();
+        break;
+      case Stage::Candidates:
+        spent += candidates_of_next();
+        break;
+      case Stage::Rjc:
+        spent += advance_rjc(std::max<std::int64_t>(1, budget - spent));
+        break;
+      case Stage::Jcbb:
+        spent += run_jcbb();
+        break;
+      case Stage::Done:
+        break;
+    }
+  }
+  return spent;
+}
+
+// Candidate search radius: a pair (i, j) passes the gate only if |f'_j - f_i| <=
+// sqrt(gate) * (sigma_i + sigma_j), with sigma the largest standard deviation of each
+// (feature_sigma included: sqrt(a^2 + s^2) <= a + s).
+std::int64_t JoinAssociator::prepare() {
+  const GaussianMap& m1 = frame_.first();
+  const GaussianMap& m2 = frame_.second();
+  const Index n1 = m1.num_features(), n2 = m2.num_features();
+  if (n1 == 0 || n2 == 0) {
+    stage_ = Stage::Done;
+    return 1;
+  }
+  const double pruning_confidence = candidate_confidence(options_.gate_confidence);
+  pruning_gate_ = chi2_quantile(2, pruning_confidence);
+  gate_radius_ = std::sqrt(pruning_gate_);
+  for (Index i = 0; i < n1; ++i) sigma_first_ = std::max(sigma_first_, largest_std(frame_.first_first(i, i)));
+  sigma_first_ += options_.feature_sigma;
+  sigma_second_.resize(static_cast<std::size_t>(n2));
   double typical_radius = 0.0;
   for (Index j = 0; j < n2; ++j) {
-    sigma_second[static_cast<std::size_t>(j)] =
-        largest_std(frame.second_second(j, j)) + options.feature_sigma;
-    typical_radius = std::max(typical_radius, gate_radius * (sigma_first + sigma_second[static_cast<std::size_t>(j)]));
+    sigma_second_[static_cast<std::size_t>(j)] =
+        largest_std(frame_.second_second(j, j)) + options_.feature_sigma;
+    typical_radius = std::max(typical_radius, gate_radius_ * (sigma_first_ + sigma_second_[static_cast<std::size_t>(j)]));
   }
-  SpatialHash hash(std::max(0.5, typical_radius));
-  for (Index i = 0; i < n1; ++i) hash.insert(static_cast<int>(i), m1.feature(i));
+  hash_.emplace(std::max(0.5, typical_radius));
+  for (Index i = 0; i < n1; ++i) hash_->insert(static_cast<int>(i), m1.feature(i));
+  candidates_.resize(static_cast<std::size_t>(n2));
+  stage_ = Stage::Candidates;
+  return 1 + kPairingCovarianceUnits * static_cast<std::int64_t>(n1 + n2);
+}
 
-  const JoinPairingModel model(frame, options.feature_sigma);
-  CandidateLists candidates(static_cast<std::size_t>(n2));
-  std::vector<int> nearby;
-  for (Index j = 0; j < n2; ++j) {
-    const double radius = gate_radius * (sigma_first + sigma_second[static_cast<std::size_t>(j)]);
-    hash.query(frame.moved_second_feature(j), radius, nearby);
-    std::sort(nearby.begin(), nearby.end());
-    candidates[static_cast<std::size_t>(j)] = std::move(nearby);
-    nearby = {};
+// The features of m1 near m2's next feature, kept if individually compatible at the pruning
+// gate (what individually_compatible() does, one list at a time).
+std::int64_t JoinAssociator::candidates_of_next() {
+  const Index j = next_second_;
+  const double radius = gate_radius_ * (sigma_first_ + sigma_second_[static_cast<std::size_t>(j)]);
+  hash_->query(frame_.moved_second_feature(j), radius, nearby_);
+  std::sort(nearby_.begin(), nearby_.end());
+  std::vector<int>& compatible = candidates_[static_cast<std::size_t>(j)];
+  for (int feature : nearby_) {
+    if (individual_distance_sq(model_, Pairing{static_cast<int>(j), feature}) <= pruning_gate_) {
+      compatible.push_back(feature);
+    }
   }
-  candidates = individually_compatible(candidates, model, pruning_confidence);
-  for (const auto& list : candidates) result.overlap += list.empty() ? 0 : 1;
+  result_.overlap += compatible.empty() ? 0 : 1;
+  const std::int64_t work = 4 + kPairingCovarianceUnits * static_cast<std::int64_t>(nearby_.size());
+  if (++next_second_ < static_cast<Index>(candidates_.size())) return work;
 
+  hash_.reset();
   // RJC is for large overlaps. On a small one, JCBB with the star node is exact and cheap;
   // and where every RJC try fails (no b-sample of the overlap was all-good: on real data far
   // fewer than p_good of the overlap features have a partner), JCBB decides instead, while
   // the overlap is small enough for its O(k^3) hypothesis path (kJcbbFallbackOverlap).
-  const JcbbOptions jcbb_options = [&] {
-    JcbbOptions o;
-    o.confidence = options.gate_confidence;
-    return o;
-  }();
-  std::vector<int> feature_of;
-  const bool small_overlap = result.overlap <= 3 * options.rjc_b;
-  if (options.association == JoinAssociation::Rjc && !small_overlap) {
+  const bool small_overlap = result_.overlap <= 3 * options_.rjc_b;
+  if (options_.association == JoinAssociation::Rjc && !small_overlap) {
     RjcOptions rjc_options;
-    rjc_options.b = options.rjc_b;
-    rjc_options.p_good = options.rjc_p_good;
-    rjc_options.p_fail = options.rjc_p_fail;
-    rjc_options.confidence = options.gate_confidence;
-    rjc_options.seed = options.seed;
+    rjc_options.b = options_.rjc_b;
+    rjc_options.p_good = options_.rjc_p_good;
+    rjc_options.p_fail = options_.rjc_p_fail;
+    rjc_options.confidence = options_.gate_confidence;
+    rjc_options.seed = options_.seed;
     rjc_options.max_nodes_per_try = 5000;  // b = 4 seeds: a bounded search of 4 levels
-    RjcResult rjc_result = rjc(candidates, model, rjc_options);
-    result.tries = rjc_result.tries;
-    feature_of = std::move(rjc_result.feature_of);
-    if (rjc_result.pairings == 0 && result.overlap <= kJcbbFallbackOverlap) {
-      feature_of = jcbb(candidates, model, jcbb_options).feature_of;
-    }
+    rjc_options.work_unit = options_.work_unit;
+    rjc_.emplace(candidates_, model_, rjc_options);
+    stage_ = Stage::Rjc;
   } else {
-    feature_of = jcbb(candidates, model, jcbb_options).feature_of;
+    stage_ = Stage::Jcbb;
   }
-  for (Index j = 0; j < n2; ++j) {
-    const int i = feature_of[static_cast<std::size_t>(j)];
-    if (i != kStar) result.pairs.emplace_back(i, j);
+  return work;
+}
+
+std::int64_t JoinAssociator::advance_rjc(std::int64_t budget) {
+  const std::int64_t spent = rjc_->advance(budget);
+  if (!rjc_->done()) return spent;
+  const RjcResult& rjc_result = rjc_->result();
+  result_.tries = rjc_result.tries;
+  if (rjc_result.pairings == 0 && result_.overlap <= kJcbbFallbackOverlap) {
+    stage_ = Stage::Jcbb;
+  } else {
+    finish(rjc_result.feature_of);
   }
-  return result;
+  return spent;
+}
+
+// JCBB over the whole overlap in one step: bounded by kJcbbFallbackOverlap or a small overlap
+// under RJC; in "jcbb" mode by its node bound only.
+std::int64_t JoinAssociator::run_jcbb() {
+  JcbbOptions jcbb_options;
+  jcbb_options.confidence = options_.gate_confidence;
+  const JcbbResult jcbb_result = jcbb(candidates_, model_, jcbb_options);
+  finish(jcbb_result.feature_of);
+  std::int64_t candidate_count = 0;
+  for (const auto& list : candidates_) candidate_count += static_cast<std::int64_t>(list.size());
+  return 1 + kPairingCovarianceUnits *
+                 (candidate_count + jcbb_result.nodes_expanded * std::max(1, jcbb_result.pairings));
+}
+
+void JoinAssociator::finish(const std::vector<int>& feature_of) {
+  for (std::size_t j = 0; j < feature_of.size(); ++j) {
+    const int i = feature_of[j];
+    if (i != kStar) result_.pairs.emplace_back(i, static_cast<Index>(j));
+  }
+  rjc_.reset();
+  candidates_ = CandidateLists();
+  stage_ = Stage::Done;
+}
+
+std::int64_t JoinAssociator::remaining_work() const {
+  switch (stage_) {
+    case Stage::Prepare:
+      return 1 + kPairingCovarianceUnits *
+                     static_cast<std::int64_t>(frame_.first().num_features() + 2 * frame_.second().num_features());
+    case Stage::Candidates:
+      return kPairingCovarianceUnits * static_cast<std::int64_t>(static_cast<Index>(candidates_.size()) - next_second_);
+    case Stage::Rjc:
+      return rjc_->remaining_work();
+    case Stage::Jcbb:
+      return 1 + kPairingCovarianceUnits * result_.overlap;
+    case Stage::Done:
+      break;
+  }
+  return 0;
 }
 
 }  // namespace dcslam

@@ -191,6 +191,8 @@ MapJoin::MapJoin(std::shared_ptr<const GaussianMap> first,
   report_.features_second = second_->num_features();
 }
 
+MapJoin::~MapJoin() = default;
+
 // A written element of the result costs a write plus a dot product of length 3 + 2r; one
 // unit of work is about eight multiply-adds, so budgets mean time across joins of any r.
 std::int64_t MapJoin::fill_element_cost() const {
@@ -227,7 +229,9 @@ std::int64_t MapJoin::remaining_work() const {
     case Phase::Associate:
       // r is unknown until association: counted as 0 here (the cost grows once the pairs are
       // known; a later deadline absorbs that, where an upper bound would inflate every budget).
-      return work + static_cast<std::int64_t>(solve_rows);
+      return work + static_cast<std::int64_t>(solve_rows) +
+             (associator_ ? associator_->remaining_work()
+                          : first_->num_features() + second_->num_features());
     case Phase::Relinearise:
       // At most max_iterations - 1 steps, small next to the fill.
       return work + static_cast<std::int64_t>(solve_rows) * solve_row_cost() +
@@ -252,19 +256,14 @@ std::int64_t MapJoin::advance(std::int64_t budget) {
   std::int64_t spent = 0;
   while (phase_ != Phase::Done && (spent == 0 || spent < budget)) {
     switch (phase_) {
-      case Phase::Associate: {
-        associate();
-        const std::int64_t units = first_->num_features() + second_->num_features();
-        spent += units;
-        phase_ = Phase::Relinearise;
-        relinearisation_started_ = false;
+      case Phase::Associate:
+        spent += associate_next(std::max<std::int64_t>(1, budget - spent));
         break;
-      }
       case Phase::Relinearise:
         if (!relinearisation_started_) {
           begin_relinearisation();
           relinearisation_started_ = true;
-          spent += static_cast<std::int64_t>(4 * pairs_.size() * pairs_.size());
+          spent += 1 + static_cast<std::int64_t>(pairs_.size());
         } else if (!gauss_newton_.converged) {
           spent += relinearise_unit();
         }
@@ -328,20 +327,37 @@ std::vector<std::pair<std::int64_t, std::int64_t>> MapJoin::merged_ids() const {
   return merged_ids_;
 }
 
-void MapJoin::associate() {
+std::int64_t MapJoin::associate_next(std::int64_t budget) {
   ScopedTimer timer(report_.seconds_association);
   const GaussianMap& m1 = *first_;
   const GaussianMap& m2 = *second_;
+  std::int64_t spent = 0;
   if (options_.association == JoinAssociation::Known) {
     pairs_ = associate_by_id(m1, m2);
     report_.overlap = static_cast<int>(pairs_.size());
   } else {
-    JoinFrame frame(m1, m2);
-    JoinAssociationResult result = associate_maps(frame, options_);
-    pairs_ = std::move(result.pairs);
+    if (!associator_) {
+      association_frame_ = std::make_unique<JoinFrame>(m1, m2);
+      associator_ = std::make_unique<JoinAssociator>(*association_frame_, options_);
+    }
+    spent = associator_->advance(budget);
+    if (!associator_->done()) return spent;
+    const JoinAssociationResult& result = associator_->result();
+    pairs_ = result.pairs;
     report_.overlap = result.overlap;
     report_.tries = result.tries;
+    associator_.reset();
+    association_frame_.reset();
   }
+  finish_association();
+  phase_ = Phase::Relinearise;
+  relinearisation_started_ = false;
+  return spent + m1.num_features() + m2.num_features();
+}
+
+void MapJoin::finish_association() {
+  const GaussianMap& m1 = *first_;
+  const GaussianMap& m2 = *second_;
   report_.pairings = static_cast<int>(pairs_.size());
   merged_ids_.clear();
   for (const auto& [i, j] : pairs_) {
@@ -395,8 +411,8 @@ std::int64_t MapJoin::relinearise_step_cost() const {
 // on the constrained MAP: x+ = x0 + P0 H' λ, λ = (H P0 H')^-1 (-c(x) - H (x0 - x)), H = dc/dx
 // at x. Only s enters c, so the steps are taken in s with its prior covariance P_ss (blocks of
 // P1 and P2); m2's other elements then follow as x0 + P0 H' λ with the last λ, O(n r). The
-// pipeline takes the final step itself, linearised at the point found here. Each step is its
-// own unit of work (amortized D&C spreads them over frames); begin, step, finish.
+// pipeline takes the final step itself, linearised at the point found here. Each step is
+// split into bounded units (amortized D&C spreads them over frames); begin, units, finish.
 void MapJoin::begin_relinearisation() {
   const GaussianMap& m1 = *first_;
   const GaussianMap& m2 = *second_;
@@ -408,9 +424,10 @@ void MapJoin::begin_relinearisation() {
   gauss_newton_.converged = r == 0 || options_.max_iterations == 1;
   if (gauss_newton_.converged) return;
 
-  const Index ds = 3 + 4 * r, second_begin = 3 + 2 * r;
-  std::vector<Index> rows1 = {0, 1, 2};
+  const Index ds = 3 + 4 * r;
+  std::vector<Index>& rows1 = gauss_newton_.first_rows;
   std::vector<Index>& rows2 = gauss_newton_.second_rows;
+  rows1 = {0, 1, 2};
   rows2.clear();
   for (const auto& [i, j] : pairs_) {
     rows1.push_back(GaussianMap::feature_offset(i));
@@ -418,68 +435,102 @@ void MapJoin::begin_relinearisation() {
     rows2.push_back(GaussianMap::feature_offset(j));
     rows2.push_back(GaussianMap::feature_offset(j) + 1);
   }
-  Eigen::VectorXd& s0 = gauss_newton_.prior;
-  Eigen::MatrixXd& P_ss = gauss_newton_.covariance;
-  s0.resize(ds);
-  P_ss = Eigen::MatrixXd::Zero(ds, ds);
-  const auto gather = [&](const GaussianMap& map, const std::vector<Index>& rows, Index at) {
-    const Index n = static_cast<Index>(rows.size());
-    for (Index b = 0; b < n; ++b) {  // column by column: both matrices are column-major
-      s0(at + b) = map.x()(rows[static_cast<std::size_t>(b)]);
-      const auto source = map.P().col(rows[static_cast<std::size_t>(b)]);
-      for (Index a = 0; a < n; ++a) P_ss(at + a, at + b) = source(rows[static_cast<std::size_t>(a)]);
-    }
-  };
-  gather(m1, rows1, 0);
-  gather(m2, rows2, second_begin);
-  // Converged when no coordinate moves by more than 1e-9 of its prior standard deviation
-  // (or, for one known almost exactly, a few ulps of its value).
-  gauss_newton_.tolerance = 1e-9 * P_ss.diagonal().array().sqrt() + 1e-14 * s0.array().abs();
-  gauss_newton_.point = s0;
+  gauss_newton_.prior.resize(ds);
+  gauss_newton_.covariance.resize(ds, ds);
+  gauss_newton_.gathered = 0;
+  gauss_newton_.next_build = 0;
+  gauss_newton_.next_panel = -1;
 }
 
-// One unit of a Gauss–Newton step: first H at the current point, P_ss H', S and the right-hand
-// side (O(r^2)); then S's Cholesky factor a panel at a time; then λ and the next point.
+// One unit of the re-linearisation: first s0 and P_ss gathered a block of columns at a time
+// (P_ss is 2r + 3 rows of m1 and 2r of m2, zero between them); then per Gauss–Newton step H at
+// the current point and P_ss H' a few pairs at a time, S = H P_ss H' and the right-hand side a
+// few pairs at a time; then S's Cholesky factor a panel at a time; then λ and the next point.
+// The blocks depend only on r and the work unit, so slicing never changes the result.
 std::int64_t MapJoin::relinearise_unit() {
   GaussNewton& gn = gauss_newton_;
   const Index r = static_cast<Index>(pairs_.size());
   const Index ds = 3 + 4 * r, second_begin = 3 + 2 * r;
   const Eigen::VectorXd& s0 = gn.prior;
-  const Eigen::MatrixXd& P_ss = gn.covariance;
+  Eigen::MatrixXd& P_ss = gn.covariance;
   Eigen::VectorXd& s = gn.point;
+  if (gn.gathered < ds) {
+    // A gathered element is a strided read: about 16 multiply-adds' worth.
+    const Index columns = std::max<Index>(1, options_.work_unit / (16 * ds));
+    const Index begin = gn.gathered, end = std::min(ds, begin + columns);
+    for (Index b = begin; b < end; ++b) {  // column by column: both are column-major
+      const bool second = b >= second_begin;
+      const GaussianMap& map = second ? *second_ : *first_;
+      const std::vector<Index>& rows = second ? gn.second_rows : gn.first_rows;
+      const Index at = second ? second_begin : 0;
+      const Index row = rows[static_cast<std::size_t>(b - at)];
+      gn.prior(b) = map.x()(row);
+      const auto source = map.P().col(row);
+      auto column = P_ss.col(b);
+      column.setZero();
+      for (Index a = 0; a < static_cast<Index>(rows.size()); ++a) {
+        column(at + a) = source(rows[static_cast<std::size_t>(a)]);
+      }
+    }
+    gn.gathered = end;
+    if (gn.gathered == ds) {
+      // Converged when no coordinate moves by more than 1e-9 of its prior standard deviation
+      // (or, for one known almost exactly, a few ulps of its value).
+      gn.tolerance = 1e-9 * P_ss.diagonal().array().sqrt() + 1e-14 * s0.array().abs();
+      gn.point = s0;
+    }
+    return 2 * static_cast<std::int64_t>((end - begin) * ds);
+  }
   if (gn.next_panel < 0) {
     Eigen::MatrixXd& PHt = gn.gain;
     Eigen::MatrixXd& S = gn.factor;
-    PHt.resize(ds, 2 * r);
-    S.resize(2 * r, 2 * r);
-    gn.rhs.resize(2 * r);
-    std::vector<Eigen::Matrix<double, 2, 3>> J_robot(static_cast<std::size_t>(r));
+    // A pair's columns of P_ss H' cost about 14 ds multiply-adds, its rows of S 24 r.
+    const Index pairs_per_unit = std::max<Index>(1, options_.work_unit / (14 * ds + 24 * r));
     Mat2& rotation = gn.rotation;
-    const double c = std::cos(s(2)), sn = std::sin(s(2));
-    rotation << c, -sn, sn, c;
-    const Eigen::VectorXd offset = s0 - s;
-    for (Index k = 0; k < r; ++k) {
-      // Rows of H for pair k: -J_R on R1, I on f_i, -Rot on f_j.
-      const Vec2 rotated = rotation * s.segment<2>(second_begin + 2 * k);
-      auto& J = J_robot[static_cast<std::size_t>(k)];
-      J = point_jacobian(rotated);
-      const Vec2 constraint = s.segment<2>(3 + 2 * k) - s.head<2>() - rotated;
-      const Vec2 H_offset = offset.segment<2>(3 + 2 * k) - J * offset.head<3>() -
-                            rotation * offset.segment<2>(second_begin + 2 * k);
-      gn.rhs.segment<2>(2 * k) = -constraint - H_offset;
-      PHt.middleCols<2>(2 * k).noalias() = P_ss.middleCols<2>(3 + 2 * k);
-      PHt.middleCols<2>(2 * k).noalias() -= P_ss.leftCols<3>() * J.transpose();
-      PHt.middleCols<2>(2 * k).noalias() -=
-          P_ss.middleCols<2>(second_begin + 2 * k) * rotation.transpose();
+    if (gn.next_build == 0) {
+      PHt.resize(ds, 2 * r);
+      S.resize(2 * r, 2 * r);
+      gn.rhs.resize(2 * r);
+      gn.robot_jacobians.resize(static_cast<std::size_t>(r));
+      const double c = std::cos(s(2)), sn = std::sin(s(2));
+      rotation << c, -sn, sn, c;
     }
-    for (Index k = 0; k < r; ++k) {
-      S.middleRows<2>(2 * k).noalias() = PHt.middleRows<2>(3 + 2 * k);
-      S.middleRows<2>(2 * k).noalias() -= J_robot[static_cast<std::size_t>(k)] * PHt.topRows<3>();
-      S.middleRows<2>(2 * k).noalias() -= rotation * PHt.middleRows<2>(second_begin + 2 * k);
+    const Index begin = gn.next_build;
+    if (begin < r) {
+      const Index end = std::min(r, begin + pairs_per_unit);
+      for (Index k = begin; k < end; ++k) {
+        // Rows of H for pair k: -J_R on R1, I on f_i, -Rot on f_j.
+        const Vec2 rotated = rotation * s.segment<2>(second_begin + 2 * k);
+        auto& J = gn.robot_jacobians[static_cast<std::size_t>(k)];
+        J = point_jacobian(rotated);
+        const Vec2 constraint = s.segment<2>(3 + 2 * k) - s.head<2>() - rotated;
+        const Vec2 H_offset = (s0.segment<2>(3 + 2 * k) - s.segment<2>(3 + 2 * k)) -
+                              J * (s0.head<3>() - s.head<3>()) -
+                              rotation * (s0.segment<2>(second_begin + 2 * k) -
+                                          s.segment<2>(second_begin + 2 * k));
+        gn.rhs.segment<2>(2 * k) = -constraint - H_offset;
+        PHt.middleCols<2>(2 * k).noalias() = P_ss.middleCols<2>(3 + 2 * k);
+        PHt.middleCols<2>(2 * k).noalias() -= P_ss.leftCols<3>() * J.transpose();
+        PHt.middleCols<2>(2 * k).noalias() -=
+            P_ss.middleCols<2>(second_begin + 2 * k) * rotation.transpose();
+      }
+      gn.next_build = end;
+      return std::max<std::int64_t>(1, static_cast<std::int64_t>(14 * ds * (end - begin)) / 8);
+    }
+    if (begin < 2 * r) {
+      const Index end = std::min(2 * r, begin + pairs_per_unit);
+      for (Index k = begin - r; k < end - r; ++k) {
+        S.middleRows<2>(2 * k).noalias() = PHt.middleRows<2>(3 + 2 * k);
+        S.middleRows<2>(2 * k).noalias() -= gn.robot_jacobians[static_cast<std::size_t>(k)] * PHt.topRows<3>();
+        S.middleRows<2>(2 * k).noalias() -= rotation * PHt.middleRows<2>(second_begin + 2 * k);
+      }
+      gn.next_build = end;
+      return std::max<std::int64_t>(1, static_cast<std::int64_t>(24 * r * (end - begin)) / 8);
     }
     S = 0.5 * (S + S.transpose()).eval();
+    gn.next_build = 0;
     gn.next_panel = 0;
-    return std::max<std::int64_t>(1, static_cast<std::int64_t>(14 * r * ds) / 8);
+    return std::max<std::int64_t>(1, static_cast<std::int64_t>(r * r));
   }
   if (gn.next_panel < gn.factor.rows()) {
     const std::int64_t cost = factor_panel(gn.factor, gn.next_panel, options_.block_columns);

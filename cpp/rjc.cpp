@@ -4,7 +4,6 @@
 #include <cmath>
 #include <limits>
 #include <random>
-#include <tuple>
 
 #include <Eigen/Cholesky>
 
@@ -61,68 +60,25 @@ void check_options(const RjcOptions& options) {
     throw InvalidArgument("RjcOptions.p_fail must be in (0, 1)");
   }
   if (options.max_tries < 1) throw InvalidArgument("RjcOptions.max_tries must be >= 1");
+  if (options.work_unit < 1) throw InvalidArgument("RjcOptions.work_unit must be >= 1");
 }
 
 }  // namespace
 
 int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel& model,
                                 double confidence, double* joint_distance_sq) {
-  StackedHypothesis stacked = stack_hypothesis(feature_of, model);
-  const std::vector<Pairing>& pairings = stacked.pairings;
-  const auto k = static_cast<Eigen::Index>(pairings.size());
-  if (joint_distance_sq != nullptr) *joint_distance_sq = 0.0;
-  if (k == 0) return 0;
-  Eigen::VectorXd& innovation = stacked.innovation;  // entries of removed pairings are zeroed
-  Eigen::MatrixXd& information = stacked.covariance;  // becomes S^-1 below
-  const Eigen::LLT<Eigen::MatrixXd> cholesky(information);
-  if (cholesky.info() != Eigen::Success) {
-    throw InvalidArgument("enforce_joint_compatibility: joint covariance not positive definite");
-  }
-  // Usually the hypothesis passes as it is: then the factor alone decides (k^3 / 3), and the
-  // inverse (three times that) is only formed when pairings have to go.
-  const double whole_distance_sq = cholesky.matrixL().solve(innovation).squaredNorm();
-  if (whole_distance_sq <= chi2_quantile(2 * static_cast<int>(k), confidence)) {
-    if (joint_distance_sq != nullptr) *joint_distance_sq = whole_distance_sq;
-    return 0;
-  }
-  information = cholesky.solve(Eigen::MatrixXd::Identity(2 * k, 2 * k));
+  JointCompatibilityEnforcement enforcement(feature_of, model, confidence,
+                                            RjcOptions().work_unit);
+  while (!enforcement.done()) enforcement.step();
+  if (joint_distance_sq != nullptr) *joint_distance_sq = enforcement.joint_distance_sq();
+  return enforcement.removed();
+}
 
-  // Removing pairing a leaves (S_rr)^-1 = L_rr - L_ra L_aa^-1 L_ar (L = S^-1): the same
-  // rank-2 update applied to the whole L also zeroes a's rows and columns, so removed
-  // pairings need no compaction. a's share of D^2 is y_a' L_aa^-1 y_a with y = L nu.
-  std::vector<bool> active(static_cast<std::size_t>(k), true);
-  Eigen::Index remaining = k;
-  int removed = 0;
-  double distance_sq = 0.0;
-  while (remaining > 0) {
-    const Eigen::VectorXd weighted = information * innovation;
-    distance_sq = innovation.dot(weighted);
-    if (distance_sq <= chi2_quantile(2 * static_cast<int>(remaining), confidence)) break;
-    Eigen::Index worst = -1;
-    double worst_share = -1.0;
-    for (Eigen::Index a = 0; a < k; ++a) {
-      if (!active[a]) continue;
-      const Vec2 y = weighted.segment<2>(2 * a);
-      const double share = y.dot(information.block<2, 2>(2 * a, 2 * a).ldlt().solve(y));
-      if (share > worst_share) {
-        worst_share = share;
-        worst = a;
-      }
-    }
-    const Eigen::MatrixXd column = information.middleCols<2>(2 * worst);
-    const Mat2 pivot = information.block<2, 2>(2 * worst, 2 * worst);
-    information.noalias() -= column * pivot.ldlt().solve(column.transpose());
-    information.middleCols<2>(2 * worst).setZero();
-    information.middleRows<2>(2 * worst).setZero();
-    innovation.segment<2>(2 * worst).setZero();
-    active[worst] = false;
-    feature_of[pairings[worst].measurement] = kStar;
-    --remaining;
-    ++removed;
-  }
-  if (remaining == 0) distance_sq = 0.0;
-  if (joint_distance_sq != nullptr) *joint_distance_sq = distance_sq;
-  return removed;
+int accept_sequentially(const std::vector<Pairing>& order, int seed_size,
+                        std::vector<int>& feature_of, const PairingModel& model, double gate) {
+  SequentialAcceptance acceptance(order, seed_size, feature_of, model, gate);
+  while (!acceptance.done()) acceptance.step();
+  return acceptance.removed();
 }
 
 // The completion tested each pairing against the seed only. Here the pairings are taken again
@@ -130,177 +86,451 @@ int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel
 // pass the individual gate conditioned on all the pairings kept before it, as on JCBB's
 // path: nu_a - C_aK S_K^-1 nu_K with C_aa - C_aK S_K^-1 C_Ka. A wrong pairing that the
 // seed alone cannot refute is refuted by its neighbours. O(k^3) for k pairings, with the
-// factor of S_K grown a block at a time. Returns the number of pairings removed.
-int accept_sequentially(const std::vector<Pairing>& order, int seed_size,
-                        std::vector<int>& feature_of, const PairingModel& model, double gate) {
+// factor of S_K grown a block at a time (only its lower triangle is ever read, so it is not
+// cleared).
+SequentialAcceptance::SequentialAcceptance(const std::vector<Pairing>& order, int seed_size,
+                                           std::vector<int>& feature_of,
+                                           const PairingModel& model, double gate)
+    : order_(order), seed_size_(seed_size), feature_of_(feature_of), model_(model), gate_(gate) {
   const auto k = static_cast<Eigen::Index>(order.size());
-  Eigen::MatrixXd lower = Eigen::MatrixXd::Zero(2 * k, 2 * k);  // factor of S_K, grown
-  Eigen::VectorXd whitened(2 * k);
-  std::vector<Pairing> kept;
-  Eigen::MatrixXd cross(2 * k, 2);
-  int removed = 0;
-  for (Eigen::Index a = 0; a < k; ++a) {
-    const Pairing& pairing = order[static_cast<std::size_t>(a)];
-    const auto m = static_cast<Eigen::Index>(kept.size());
-    for (Eigen::Index c = 0; c < m; ++c) {
-      cross.middleRows<2>(2 * c) = model.covariance(kept[static_cast<std::size_t>(c)], pairing);
-    }
-    auto cross_kept = cross.topRows(2 * m);
-    lower.topLeftCorner(2 * m, 2 * m).triangularView<Eigen::Lower>().solveInPlace(cross_kept);
-    const Vec2 innovation = model.innovation(pairing) - cross_kept.transpose() * whitened.head(2 * m);
-    const Mat2 covariance = model.covariance(pairing, pairing) - cross_kept.transpose() * cross_kept;
-    const Eigen::LLT<Mat2> factor(covariance);
-    const bool seed = a < seed_size;
-    if (factor.info() != Eigen::Success ||
-        (!seed && factor.matrixL().solve(innovation).squaredNorm() > gate)) {
-      feature_of[pairing.measurement] = kStar;
-      ++removed;
-      continue;
-    }
-    lower.block(2 * m, 0, 2, 2 * m) = cross_kept.transpose();
-    lower.block<2, 2>(2 * m, 2 * m) = factor.matrixL();
-    whitened.segment<2>(2 * m) = factor.matrixL().solve(innovation);
-    kept.push_back(pairing);
+  lower_.resize(2 * k, 2 * k);
+  whitened_.resize(2 * k);
+  cross_.resize(2 * k, 2);
+}
+
+std::int64_t SequentialAcceptance::step() {
+  const Pairing& pairing = order_[static_cast<std::size_t>(next_)];
+  const auto m = static_cast<Eigen::Index>(kept_.size());
+  for (Eigen::Index c = 0; c < m; ++c) {
+    cross_.middleRows<2>(2 * c) = model_.covariance(kept_[static_cast<std::size_t>(c)], pairing);
   }
-  return removed;
+  auto cross_kept = cross_.topRows(2 * m);
+  lower_.topLeftCorner(2 * m, 2 * m).triangularView<Eigen::Lower>().solveInPlace(cross_kept);
+  const Vec2 innovation = model_.innovation(pairing) - cross_kept.transpose() * whitened_.head(2 * m);
+  const Mat2 covariance = model_.covariance(pairing, pairing) - cross_kept.transpose() * cross_kept;
+  const Eigen::LLT<Mat2> factor(covariance);
+  const bool seed = next_ < seed_size_;
+  ++next_;
+  const std::int64_t work = kPairingCovarianceUnits * (m + 1) + static_cast<std::int64_t>(m) * m / 2;
+  if (factor.info() != Eigen::Success ||
+      (!seed && factor.matrixL().solve(innovation).squaredNorm() > gate_)) {
+    feature_of_[pairing.measurement] = kStar;
+    ++removed_;
+    return work;
+  }
+  lower_.block(2 * m, 0, 2, 2 * m) = cross_kept.transpose();
+  lower_.block<2, 2>(2 * m, 2 * m) = factor.matrixL();
+  whitened_.segment<2>(2 * m) = factor.matrixL().solve(innovation);
+  kept_.push_back(pairing);
+  return work;
+}
+
+// Each pairing left costs its covariances with the kept ones and a triangular solve of their
+// factor: about sum over m of (16 m + m^2 / 2) units.
+std::int64_t SequentialAcceptance::remaining_work() const {
+  const auto left = static_cast<std::int64_t>(order_.size()) - next_;
+  const auto m0 = static_cast<std::int64_t>(kept_.size()), m1 = m0 + left;
+  return kPairingCovarianceUnits * left * (m0 + m1) / 2 + (m1 * m1 * m1 - m0 * m0 * m0) / 6 + left;
+}
+
+JointCompatibilityEnforcement::JointCompatibilityEnforcement(std::vector<int>& feature_of,
+                                                             const PairingModel& model,
+                                                             double confidence,
+                                                             std::int64_t work_unit)
+    : feature_of_(feature_of), model_(model), confidence_(confidence), work_unit_(work_unit) {
+  for (std::size_t i = 0; i < feature_of.size(); ++i) {
+    if (feature_of[i] != kStar) stacked_.pairings.push_back(Pairing{static_cast<int>(i), feature_of[i]});
+  }
+  const auto k = static_cast<Eigen::Index>(stacked_.pairings.size());
+  stacked_.innovation.resize(2 * k);
+  stacked_.covariance.resize(2 * k, 2 * k);
+  if (k == 0) stage_ = Stage::Done;
+}
+
+// S is stacked as stack_hypothesis() does, a block row per step; it is then factored, and
+// usually the hypothesis passes as it is: the factor alone decides (k^3 / 3), and the inverse
+// (three times that) is only formed when pairings have to go. Removing pairing a leaves
+// (S_rr)^-1 = L_rr - L_ra L_aa^-1 L_ar (L = S^-1): the same rank-2 update applied to the whole
+// L also zeroes a's rows and columns, so removed pairings need no compaction. a's share of D^2
+// is y_a' L_aa^-1 y_a with y = L nu.
+std::int64_t JointCompatibilityEnforcement::step() {
+  const std::vector<Pairing>& pairings = stacked_.pairings;
+  const auto k = static_cast<Eigen::Index>(pairings.size());
+  Eigen::VectorXd& innovation = stacked_.innovation;  // entries of removed pairings are zeroed
+  Eigen::MatrixXd& covariance = stacked_.covariance;
+  const auto n = static_cast<std::int64_t>(2 * k);
+  switch (stage_) {
+    case Stage::Stack: {
+      const Eigen::Index a = next_;
+      innovation.segment<2>(2 * a) = model_.innovation(pairings[a]);
+      for (Eigen::Index b = 0; b <= a; ++b) {
+        const Mat2 block = model_.covariance(pairings[a], pairings[b]);
+        covariance.block<2, 2>(2 * a, 2 * b) = block;
+        covariance.block<2, 2>(2 * b, 2 * a) = block.transpose();
+      }
+      if (++next_ == k) {
+        cholesky_ = ResumableCholesky(2 * k, 64, work_unit_);
+        stage_ = Stage::Factor;
+      }
+      return kPairingCovarianceUnits * (a + 1);
+    }
+    case Stage::Factor: {
+      const std::int64_t work = cholesky_.step(covariance);
+      if (cholesky_.failed()) {
+        throw InvalidArgument("enforce_joint_compatibility: joint covariance not positive definite");
+      }
+      if (cholesky_.done()) stage_ = Stage::Test;
+      return work;
+    }
+    case Stage::Test: {
+      const double whole_distance_sq =
+          covariance.triangularView<Eigen::Lower>().solve(innovation).squaredNorm();
+      if (whole_distance_sq <= chi2_quantile(2 * static_cast<int>(k), confidence_)) {
+        distance_sq_ = whole_distance_sq;
+        stage_ = Stage::Done;
+      } else {
+        information_.resize(2 * k, 2 * k);
+        next_ = 0;
+        stage_ = Stage::Invert;
+      }
+      return 1 + n * n / 16;
+    }
+    case Stage::Invert: {
+      // S^-1 = L^-T L^-1 a block of columns at a time (columns are independent).
+      const Eigen::Index width = std::clamp<Eigen::Index>(
+          static_cast<Eigen::Index>(work_unit_ / (n * n)), 1, 2 * k);
+      const Eigen::Index c = next_, w = std::min(width, 2 * k - c);
+      auto columns = information_.middleCols(c, w);
+      columns.setZero();
+      columns.block(c, 0, w, w).setIdentity();
+      covariance.triangularView<Eigen::Lower>().solveInPlace(columns);
+      covariance.triangularView<Eigen::Lower>().transpose().solveInPlace(columns);
+      next_ = c + w;
+      if (next_ == 2 * k) {
+        active_.assign(static_cast<std::size_t>(k), true);
+        remaining_ = k;
+        stage_ = Stage::Remove;
+      }
+      return 1 + n * n * w / 8;
+    }
+    case Stage::Remove: {
+      Eigen::MatrixXd& information = information_;
+      const Eigen::VectorXd weighted = information * innovation;
+      distance_sq_ = innovation.dot(weighted);
+      if (distance_sq_ <= chi2_quantile(2 * static_cast<int>(remaining_), confidence_)) {
+        stage_ = Stage::Done;
+        return 1 + n * n / 8;
+      }
+      Eigen::Index worst = -1;
+      double worst_share = -1.0;
+      for (Eigen::Index a = 0; a < k; ++a) {
+        if (!active_[a]) continue;
+        const Vec2 y = weighted.segment<2>(2 * a);
+        const double share = y.dot(information.block<2, 2>(2 * a, 2 * a).ldlt().solve(y));
+        if (share > worst_share) {
+          worst_share = share;
+          worst = a;
+        }
+      }
+      const Eigen::MatrixXd column = information.middleCols<2>(2 * worst);
+      const Mat2 pivot = information.block<2, 2>(2 * worst, 2 * worst);
+      information.noalias() -= column * pivot.ldlt().solve(column.transpose());
+      information.middleCols<2>(2 * worst).setZero();
+      information.middleRows<2>(2 * worst).setZero();
+      innovation.segment<2>(2 * worst).setZero();
+      active_[worst] = false;
+      feature_of_[pairings[worst].measurement] = kStar;
+      --remaining_;
+      ++removed_;
+      if (remaining_ == 0) {
+        distance_sq_ = 0.0;
+        stage_ = Stage::Done;
+      }
+      return 1 + 3 * n * n / 8;
+    }
+    case Stage::Done:
+      break;
+  }
+  return 0;
+}
+
+// Until the test, the stacking (k^2 / 2 blocks) and the factor; a failing test adds the inverse
+// (n^3 multiply-adds), and each removal 3 n^2.
+std::int64_t JointCompatibilityEnforcement::remaining_work() const {
+  const auto k = static_cast<std::int64_t>(stacked_.pairings.size()), n = 2 * k;
+  switch (stage_) {
+    case Stage::Stack:
+      return kPairingCovarianceUnits * (k * (k + 1) - next_ * (next_ + 1)) / 2 + n * n * n / 24;
+    case Stage::Factor:
+      return cholesky_.remaining_work() + 1;
+    case Stage::Test:
+      return 1 + n * n / 16;
+    case Stage::Invert:
+      return n * n * (n - next_) / 8 + remaining_ * 3 * n * n / 8;
+    case Stage::Remove:
+      return 1 + remaining_ * 3 * n * n / 8;
+    case Stage::Done:
+      break;
+  }
+  return 0;
 }
 
 RjcResult rjc(const CandidateLists& candidates, const PairingModel& model,
               const RjcOptions& options) {
-  check_options(options);
-  const auto m = candidates.size();
-  RjcResult result;
-  result.feature_of.assign(m, kStar);
+  RjcSearch search(candidates, model, options);
+  while (!search.done()) search.advance(std::numeric_limits<std::int64_t>::max());
+  return search.result();
+}
 
-  std::vector<int> overlap;
+RjcSearch::RjcSearch(const CandidateLists& candidates, const PairingModel& model,
+                     const RjcOptions& options)
+    : candidates_(candidates), model_(model), options_(options), star_free_([&] {
+        check_options(options);
+        JcbbOptions jcbb_options;
+        jcbb_options.confidence = options.confidence;
+        jcbb_options.max_nodes = options.max_nodes_per_try;
+        jcbb_options.allow_star = false;
+        return jcbb_options;
+      }()),
+      gate_(chi2_quantile(2, options.confidence)), rng_(options.seed) {}
+
+std::int64_t RjcSearch::advance(std::int64_t budget) {
+  std::int64_t spent = 0;
+  while (stage_ != Stage::Done && (spent == 0 || spent < budget)) {
+    switch (stage_) {
+      case Stage::Start:
+        spent += start();
+        break;
+      case Stage::Seed:
+        spent += seed();
+        break;
+      case Stage::Conditional:
+        spent += conditional_next();
+        break;
+      case Stage::CompleteTry:
+        spent += complete_try();
+        break;
+      case Stage::Sequential:
+        spent += sequential_->step();
+        if (sequential_->done()) {
+          result_.dropped = sequential_->removed();
+          joint_.emplace(result_.feature_of, model_, options_.confidence, options_.work_unit);
+          stage_ = Stage::Joint;
+        }
+        break;
+      case Stage::Joint:
+        spent += joint_->step();
+        if (joint_->done()) {
+          result_.dropped += joint_->removed();
+          result_.joint_distance_sq = joint_->joint_distance_sq();
+          result_.pairings = best_pairings_ - result_.dropped;
+          stage_ = Stage::Done;
+        }
+        break;
+      case Stage::Done:
+        break;
+    }
+  }
+  return spent;
+}
+
+// The overlap; a small one (|O| <= b) is paired by plain JCBB with the star in this step.
+std::int64_t RjcSearch::start() {
+  const auto m = candidates_.size();
+  result_.feature_of.assign(m, kStar);
+  std::int64_t candidate_count = 0;
   for (std::size_t i = 0; i < m; ++i) {
-    if (!candidates[i].empty()) overlap.push_back(static_cast<int>(i));
+    if (!candidates_[i].empty()) overlap_.push_back(static_cast<int>(i));
+    candidate_count += static_cast<std::int64_t>(candidates_[i].size());
   }
-  result.overlap_size = static_cast<int>(overlap.size());
-  if (overlap.empty()) return result;
-
-  JcbbOptions jcbb_options;
-  jcbb_options.confidence = options.confidence;
-  jcbb_options.max_nodes = options.max_nodes_per_try;
-  const int b = options.b;
-  if (result.overlap_size <= b) {
-    const JcbbResult all = jcbb(candidates, model, jcbb_options);
-    result.feature_of = all.feature_of;
-    result.pairings = all.pairings;
-    result.joint_distance_sq = all.joint_distance_sq;
-    result.tries = 1;
-    return result;
+  result_.overlap_size = static_cast<int>(overlap_.size());
+  const int b = options_.b;
+  if (overlap_.empty()) {
+    stage_ = Stage::Done;
+    return 1 + static_cast<std::int64_t>(m);
   }
+  if (result_.overlap_size <= b) {
+    JcbbOptions jcbb_options = star_free_.options();
+    jcbb_options.allow_star = true;
+    const JcbbResult all = jcbb(candidates_, model_, jcbb_options);
+    result_.feature_of = all.feature_of;
+    result_.pairings = all.pairings;
+    result_.joint_distance_sq = all.joint_distance_sq;
+    result_.tries = 1;
+    stage_ = Stage::Done;
+    return 1 + static_cast<std::int64_t>(m) +
+           kPairingCovarianceUnits * (candidate_count + all.nodes_expanded * b);
+  }
+  pool_ = overlap_;
+  sample_.resize(static_cast<std::size_t>(b));
+  sample_candidates_.resize(static_cast<std::size_t>(b));
+  feature_of_.assign(m, kStar);
+  seed_covariance_.resize(2 * b, 2 * b);
+  cross_.resize(2 * b, 2);
+  best_pairings_ = 0;
+  best_score_ = std::numeric_limits<double>::infinity();
+  p_good_ = options_.p_good;
+  tries_wanted_ = tries_needed(p_good_, b, options_.p_fail);
+  stage_ = Stage::Seed;
+  return 1 + static_cast<std::int64_t>(m);
+}
 
-  jcbb_options.allow_star = false;
-  Jcbb star_free(jcbb_options);
-  const double gate = chi2_quantile(2, options.confidence);
-  std::mt19937_64 rng(options.seed);
-  std::vector<int> pool = overlap;
-  std::vector<int> sample(static_cast<std::size_t>(b));
-  CandidateLists sample_candidates(static_cast<std::size_t>(b));
-  const SampledModel sampled_model(model, sample);
-  std::vector<int> feature_of(m, kStar);
-  std::vector<int> used_features;
-  std::vector<Pairing> hypothesis;
-  std::vector<std::tuple<double, int, int>> conditional;  // (distance^2, measurement, feature)
-  Eigen::MatrixXd seed_covariance(2 * b, 2 * b);
+// The next try's sample and its seed hypothesis (JCBB* over b measurements, bounded by
+// max_nodes_per_try), or the end of the tries.
+std::int64_t RjcSearch::seed() {
+  if (!(result_.tries < tries_wanted_ && result_.tries < options_.max_tries)) {
+    end_of_tries();
+    return 1;
+  }
+  const int b = options_.b;
+  ++result_.tries;
+  // Partial Fisher–Yates: the first b slots of the pool become a uniform sample.
+  for (std::size_t k = 0; k < sample_.size(); ++k) {
+    std::swap(pool_[k], pool_[k + draw_below(rng_, pool_.size() - k)]);
+    sample_[k] = pool_[k];
+    sample_candidates_[k] = candidates_[static_cast<std::size_t>(pool_[k])];
+  }
+  const SampledModel sampled_model(model_, sample_);
+  const JcbbResult seed = star_free_.solve(sample_candidates_, sampled_model);
+  const std::int64_t work = kPairingCovarianceUnits * (1 + seed.nodes_expanded) * b;
+  if (seed.pairings < b) return work;
+
+  std::fill(feature_of_.begin(), feature_of_.end(), kStar);
+  used_features_.clear();
+  hypothesis_.clear();
   Eigen::VectorXd seed_innovation(2 * b);
-  Eigen::MatrixXd cross(2 * b, 2);
-
-  int best_pairings = 0;
-  double best_score = std::numeric_limits<double>::infinity();
-  std::vector<Pairing> order, best_order;  // pairings in the order the try accepted them
-  double p_good = options.p_good;
-  double tries_wanted = tries_needed(p_good, b, options.p_fail);
-  while (result.tries < tries_wanted && result.tries < options.max_tries) {
-    ++result.tries;
-    // Partial Fisher–Yates: the first b slots of the pool become a uniform sample.
-    for (std::size_t k = 0; k < sample.size(); ++k) {
-      std::swap(pool[k], pool[k + draw_below(rng, pool.size() - k)]);
-      sample[k] = pool[k];
-      sample_candidates[k] = candidates[static_cast<std::size_t>(pool[k])];
+  for (int k = 0; k < b; ++k) {
+    const Pairing pairing{sample_[static_cast<std::size_t>(k)], seed.feature_of[k]};
+    hypothesis_.push_back(pairing);
+    feature_of_[pairing.measurement] = pairing.feature;
+    used_features_.push_back(pairing.feature);
+    seed_innovation.segment<2>(2 * k) = model_.innovation(pairing);
+    for (int c = 0; c <= k; ++c) {
+      const Mat2 block = model_.covariance(pairing, hypothesis_[static_cast<std::size_t>(c)]);
+      seed_covariance_.block<2, 2>(2 * k, 2 * c) = block;
+      seed_covariance_.block<2, 2>(2 * c, 2 * k) = block.transpose();
     }
-    const JcbbResult seed = star_free.solve(sample_candidates, sampled_model);
-    if (seed.pairings < b) continue;
+  }
+  const Eigen::LLT<Eigen::MatrixXd> seed_factor(seed_covariance_);
+  if (seed_factor.info() != Eigen::Success) return work;
+  seed_covariance_ = seed_factor.matrixL();
+  seed_whitened_ = seed_factor.matrixL().solve(seed_innovation);
+  seed_distance_sq_ = seed.joint_distance_sq;
+  conditional_.clear();
+  next_overlap_ = 0;
+  stage_ = Stage::Conditional;
+  return work;
+}
 
-    std::fill(feature_of.begin(), feature_of.end(), kStar);
-    used_features.clear();
-    hypothesis.clear();
-    for (int k = 0; k < b; ++k) {
-      const Pairing pairing{sample[static_cast<std::size_t>(k)], seed.feature_of[k]};
-      hypothesis.push_back(pairing);
-      feature_of[pairing.measurement] = pairing.feature;
-      used_features.push_back(pairing.feature);
-      seed_innovation.segment<2>(2 * k) = model.innovation(pairing);
-      for (int c = 0; c <= k; ++c) {
-        const Mat2 block = model.covariance(pairing, hypothesis[static_cast<std::size_t>(c)]);
-        seed_covariance.block<2, 2>(2 * k, 2 * c) = block;
-        seed_covariance.block<2, 2>(2 * c, 2 * k) = block.transpose();
-      }
-    }
-    const Eigen::LLT<Eigen::MatrixXd> seed_factor(seed_covariance);
-    if (seed_factor.info() != Eigen::Success) continue;
-    const auto lower = seed_factor.matrixL();
-    const Eigen::VectorXd whitened = lower.solve(seed_innovation);
-
-    conditional.clear();
-    for (int measurement : overlap) {
-      if (feature_of[measurement] != kStar) continue;
-      for (int feature : candidates[measurement]) {
-        if (std::find(used_features.begin(), used_features.end(), feature) != used_features.end()) {
-          continue;
-        }
-        const Pairing pairing{measurement, feature};
-        for (std::size_t k = 0; k < hypothesis.size(); ++k) {
-          cross.middleRows<2>(2 * static_cast<Eigen::Index>(k)) =
-              model.covariance(hypothesis[k], pairing);
-        }
-        lower.solveInPlace(cross);
-        const Vec2 innovation = model.innovation(pairing) - cross.transpose() * whitened;
-        const Mat2 covariance = model.covariance(pairing, pairing) - cross.transpose() * cross;
-        const Eigen::LLT<Mat2> covariance_factor(covariance);
-        if (covariance_factor.info() != Eigen::Success) continue;
-        const double distance_sq = covariance_factor.matrixL().solve(innovation).squaredNorm();
-        if (distance_sq <= gate) conditional.emplace_back(distance_sq, measurement, feature);
-      }
-    }
-    std::sort(conditional.begin(), conditional.end());
-    int pairings = b;
-    double score = seed.joint_distance_sq;
-    order = hypothesis;
-    for (const auto& [distance_sq, measurement, feature] : conditional) {
-      if (feature_of[measurement] != kStar) continue;
-      if (std::find(used_features.begin(), used_features.end(), feature) != used_features.end()) {
+// One overlap measurement not in the seed: each of its candidates (features not in the seed)
+// conditioned on the seed hypothesis H, kept if it passes the 2-dof gate.
+std::int64_t RjcSearch::conditional_next() {
+  const int measurement = overlap_[next_overlap_];
+  std::int64_t work = 1;
+  if (feature_of_[measurement] == kStar) {
+    const auto lower = seed_covariance_.triangularView<Eigen::Lower>();
+    for (int feature : candidates_[measurement]) {
+      if (std::find(used_features_.begin(), used_features_.end(), feature) != used_features_.end()) {
         continue;
       }
-      order.push_back(Pairing{measurement, feature});
-      feature_of[measurement] = feature;
-      used_features.push_back(feature);
-      ++pairings;
-      score += distance_sq;
+      const Pairing pairing{measurement, feature};
+      for (std::size_t k = 0; k < hypothesis_.size(); ++k) {
+        cross_.middleRows<2>(2 * static_cast<Eigen::Index>(k)) = model_.covariance(hypothesis_[k], pairing);
+      }
+      lower.solveInPlace(cross_);
+      work += kPairingCovarianceUnits * static_cast<std::int64_t>(hypothesis_.size() + 1) +
+              static_cast<std::int64_t>(cross_.size());
+      const Vec2 innovation = model_.innovation(pairing) - cross_.transpose() * seed_whitened_;
+      const Mat2 covariance = model_.covariance(pairing, pairing) - cross_.transpose() * cross_;
+      const Eigen::LLT<Mat2> covariance_factor(covariance);
+      if (covariance_factor.info() != Eigen::Success) continue;
+      const double distance_sq = covariance_factor.matrixL().solve(innovation).squaredNorm();
+      if (distance_sq <= gate_) conditional_.emplace_back(distance_sq, measurement, feature);
     }
+  }
+  if (++next_overlap_ == overlap_.size()) stage_ = Stage::CompleteTry;
+  return work;
+}
 
-    if (pairings > best_pairings || (pairings == best_pairings && score < best_score)) {
-      best_pairings = pairings;
-      best_score = score;
-      result.feature_of = feature_of;
-      best_order = order;
+// The try's hypothesis: the conditional pairings greedily by distance, each feature used once;
+// kept if it beats the best, which may raise p_good and so lower the number of tries.
+std::int64_t RjcSearch::complete_try() {
+  std::sort(conditional_.begin(), conditional_.end());
+  int pairings = options_.b;
+  double score = seed_distance_sq_;
+  order_ = hypothesis_;
+  for (const auto& [distance_sq, measurement, feature] : conditional_) {
+    if (feature_of_[measurement] != kStar) continue;
+    if (std::find(used_features_.begin(), used_features_.end(), feature) != used_features_.end()) {
+      continue;
     }
-    p_good = std::max(p_good, static_cast<double>(best_pairings) / result.overlap_size);
-    tries_wanted = tries_needed(p_good, b, options.p_fail);
+    order_.push_back(Pairing{measurement, feature});
+    feature_of_[measurement] = feature;
+    used_features_.push_back(feature);
+    ++pairings;
+    score += distance_sq;
   }
+  if (pairings > best_pairings_ || (pairings == best_pairings_ && score < best_score_)) {
+    best_pairings_ = pairings;
+    best_score_ = score;
+    result_.feature_of = feature_of_;
+    best_order_ = order_;
+  }
+  p_good_ = std::max(p_good_, static_cast<double>(best_pairings_) / result_.overlap_size);
+  tries_wanted_ = tries_needed(p_good_, options_.b, options_.p_fail);
+  stage_ = Stage::Seed;
+  const auto c = static_cast<std::int64_t>(conditional_.size());
+  return 1 + c * (4 + static_cast<std::int64_t>(used_features_.size()) / 8) +
+         static_cast<std::int64_t>(feature_of_.size()) / 8;
+}
 
-  result.joint_distance_sq = std::numeric_limits<double>::quiet_NaN();
-  if (best_pairings == 0) {
-    result.joint_distance_sq = 0.0;
-  } else if (options.verify) {
-    result.dropped = accept_sequentially(best_order, b, result.feature_of, model, gate);
-    result.dropped += enforce_joint_compatibility(result.feature_of, model, options.confidence,
-                                                  &result.joint_distance_sq);
+void RjcSearch::end_of_tries() {
+  result_.joint_distance_sq = std::numeric_limits<double>::quiet_NaN();
+  result_.pairings = best_pairings_;
+  if (best_pairings_ == 0) {
+    result_.joint_distance_sq = 0.0;
+    stage_ = Stage::Done;
+  } else if (options_.verify) {
+    sequential_.emplace(best_order_, options_.b, result_.feature_of, model_, gate_);
+    stage_ = Stage::Sequential;
+  } else {
+    stage_ = Stage::Done;
   }
-  result.pairings = best_pairings - result.dropped;
-  return result;
+}
+
+// One try: its seed and the conditional test of every overlap candidate against b pairings.
+std::int64_t RjcSearch::try_cost() const {
+  std::int64_t candidate_count = 0;
+  for (int measurement : overlap_) {
+    candidate_count += static_cast<std::int64_t>(candidates_[static_cast<std::size_t>(measurement)].size());
+  }
+  const std::int64_t b = options_.b;
+  return candidate_count * (kPairingCovarianceUnits * (b + 1) + 4 * b) + kPairingCovarianceUnits * b * b;
+}
+
+// Before the tries end, the tries still wanted plus a verification of the whole overlap; then
+// the verification's own estimate.
+std::int64_t RjcSearch::remaining_work() const {
+  const auto k = static_cast<std::int64_t>(overlap_.size());
+  const std::int64_t verification = options_.verify ? k * k * k / 2 : 0;
+  switch (stage_) {
+    case Stage::Start:
+      return static_cast<std::int64_t>(candidates_.size());
+    case Stage::Seed:
+    case Stage::Conditional:
+    case Stage::CompleteTry: {
+      const double tries_left =
+          std::max(0.0, std::min(tries_wanted_, static_cast<double>(options_.max_tries)) - result_.tries);
+      return static_cast<std::int64_t>(std::ceil(tries_left)) * try_cost() + verification;
+    }
+    case Stage::Sequential:
+      return sequential_->remaining_work() + k * k * k / 3;
+    case Stage::Joint:
+      return joint_->remaining_work();
+    case Stage::Done:
+      break;
+  }
+  return 0;
 }
 
 }  // namespace dcslam

@@ -6,11 +6,15 @@
 // decision gate's tail (0.999 for gate_confidence 0.99; the overlap counts features with a
 // candidate at that level); pairs are accepted by the joint or conditional test at
 // gate_confidence.
+#include <cstdint>
+#include <optional>
 #include <utility>
 #include <vector>
 
 #include "dcslam/jcbb.hpp"
 #include "dcslam/map_joining.hpp"
+#include "dcslam/rjc.hpp"
+#include "dcslam/spatial_hash.hpp"
 
 namespace dcslam {
 
@@ -37,5 +41,50 @@ struct JoinAssociationResult {
 };
 
 JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options);
+
+// associate_maps() as resumable work, so that an amortized join spreads its association over
+// many steps: advance() does at least one step (the search radii and the spatial hash over
+// m1, the candidates of one m2 feature, one step of RJC's RjcSearch, or a whole JCBB, which
+// only runs on overlaps of at most kJcbbFallbackOverlap features or in "jcbb" mode) and
+// stops once `budget` units of eight multiply-adds are spent. The steps are the computation
+// associate_maps() does, in the same order, so the result is bitwise the same however the work
+// is sliced. `frame` must outlive the associator, which is neither copied nor moved.
+class JoinAssociator {
+ public:
+  JoinAssociator(const JoinFrame& frame, const JoinOptions& options);
+  JoinAssociator(const JoinAssociator&) = delete;
+  JoinAssociator& operator=(const JoinAssociator&) = delete;
+
+  std::int64_t advance(std::int64_t budget);
+  bool done() const { return stage_ == Stage::Done; }
+  // Work left in the units of advance(). The decision's share is only known once the overlap
+  // is (counted as 0 before, as the join counts the constraints' before association).
+  std::int64_t remaining_work() const;
+  // Valid once done().
+  const JoinAssociationResult& result() const { return result_; }
+
+ private:
+  enum class Stage { Prepare, Candidates, Rjc, Jcbb, Done };
+  std::int64_t prepare();
+  std::int64_t candidates_of_next();
+  std::int64_t advance_rjc(std::int64_t budget);
+  std::int64_t run_jcbb();
+  void finish(const std::vector<int>& feature_of);
+
+  const JoinFrame& frame_;
+  JoinOptions options_;
+  JoinPairingModel model_;
+  Stage stage_ = Stage::Prepare;
+  JoinAssociationResult result_;
+  double pruning_gate_ = 0.0;  // the individual gate, chi2(2) at the pruning confidence
+  double gate_radius_ = 0.0;
+  double sigma_first_ = 0.0;
+  std::vector<double> sigma_second_;
+  std::optional<SpatialHash> hash_;
+  std::vector<int> nearby_;
+  CandidateLists candidates_;
+  Eigen::Index next_second_ = 0;  // next m2 feature whose candidates are searched
+  std::optional<RjcSearch> rjc_;
+};
 
 }  // namespace dcslam

@@ -113,6 +113,8 @@ class JoinFrame {
 std::vector<std::pair<Eigen::Index, Eigen::Index>> associate_by_id(const GaussianMap& first,
                                                                    const GaussianMap& second);
 
+class JoinAssociator;  // join_association.hpp
+
 class MapJoin {
  public:
   using Pairs = std::vector<std::pair<Eigen::Index, Eigen::Index>>;
@@ -125,6 +127,9 @@ class MapJoin {
   MapJoin(std::shared_ptr<const GaussianMap> first, std::shared_ptr<const GaussianMap> second,
           JoinOptions options, std::vector<Eigen::Index> first_tentative = {},
           std::vector<Eigen::Index> second_tentative = {});
+  ~MapJoin();
+  MapJoin(const MapJoin&) = delete;
+  MapJoin& operator=(const MapJoin&) = delete;
 
   // Does at least one unit of work (if not done) and stops once `budget` work units are
   // spent. Returns the work done.
@@ -146,7 +151,10 @@ class MapJoin {
 
  private:
   enum class Phase { Associate, Relinearise, Constrain, Factor, Solve, Assemble, Fill, Done };
-  void associate();
+  // The association a step of JoinAssociator at a time (at once by id for "known"); once the
+  // pairs are known, the kept and dropped features, and the phase moves on. Returns the work.
+  std::int64_t associate_next(std::int64_t budget);
+  void finish_association();
   // Gauss–Newton on the constrained MAP over the variables the constraints involve, one step
   // per unit of work; finishing sets the linearisation point (lin_first_robot_,
   // lin_second_x_) and returns the work it did.
@@ -196,13 +204,17 @@ class MapJoin {
   std::vector<char> second_dropped_;  // per m2 feature: a tentative one left unmatched
   Vec3 lin_first_robot_ = Vec3::Zero();
   Eigen::VectorXd lin_second_x_;
-  struct GaussNewton {  // state kept between the steps of the re-linearisation
+  struct GaussNewton {  // state kept between the units of the re-linearisation
     Eigen::VectorXd prior, point, multipliers;  // s0, s, λ of the last step
     Eigen::MatrixXd covariance;                 // P_ss
+    Eigen::Index gathered = 0;                  // columns of s0 and P_ss gathered so far
     Eigen::MatrixXd gain, factor;               // P_ss H' and S (becoming L) of this step
     Eigen::VectorXd rhs;
+    std::vector<Eigen::Matrix<double, 2, 3>> robot_jacobians;  // J_R of each pair, this step
+    Eigen::Index next_build = 0;   // pairs done: < r of P_ss H', then r + those of S's rows
     Eigen::Index next_panel = -1;               // -1: the step's S is not built yet
     Eigen::ArrayXd tolerance;
+    std::vector<Eigen::Index> first_rows;       // rows of R1 and the matched f_i in m1
     std::vector<Eigen::Index> second_rows;      // rows of the matched f_j in m2
     Mat2 rotation = Mat2::Identity();           // R1's rotation where the last step linearised
     int steps = 0;
@@ -235,6 +247,9 @@ class MapJoin {
   static constexpr Eigen::Index kPairsPerUnit = 16;
   Eigen::Index solve_rows_per_unit() const;
   bool relinearisation_started_ = false;
+  // The association's frame (m2 moved into B1 at the prior means) and search, while it runs.
+  std::unique_ptr<JoinFrame> association_frame_;
+  std::unique_ptr<JoinAssociator> associator_;
   std::unique_ptr<JoinFrame> frame_;   // m2 moved into B1 at the linearisation point
   Eigen::Index next_pair_ = 0;
   Eigen::Index next_panel_ = 0;

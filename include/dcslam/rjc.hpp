@@ -4,11 +4,19 @@
 // same PairingModel as JCBB (measurement = feature of the second map, feature = feature of
 // the first).
 #include <cstdint>
+#include <optional>
+#include <random>
+#include <tuple>
 #include <vector>
 
+#include "dcslam/blocked_cholesky.hpp"
 #include "dcslam/jcbb.hpp"
 
 namespace dcslam {
+
+// Work of one PairingModel::covariance() block in units of eight multiply-adds, as the
+// resumable searches count it (a map join's is a few 2x3 by 3x2 products).
+inline constexpr std::int64_t kPairingCovarianceUnits = 16;
 
 struct RjcOptions {
   int b = 4;             // measurements drawn per try and paired by JCBB*
@@ -19,6 +27,9 @@ struct RjcOptions {
   int max_tries = 100;                       // cap on t
   std::int64_t max_nodes_per_try = 100000;   // JCBB node bound of each try
   bool verify = true;  // enforce joint compatibility of the final hypothesis (see rjc())
+  // Multiply-adds that bound one step of the resumable search (RjcSearch) where its sizes
+  // allow; the steps' boundaries never change the result.
+  std::int64_t work_unit = std::int64_t{1} << 18;
 };
 
 struct RjcResult {
@@ -66,5 +77,123 @@ int accept_sequentially(const std::vector<Pairing>& order, int seed_size,
 // final D^2 (0 if nothing is left). InvalidArgument if S is not positive definite.
 int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel& model,
                                 double confidence, double* joint_distance_sq = nullptr);
+
+// accept_sequentially() as resumable work: step() tests one pairing (O(k^2)). The referenced
+// arguments must outlive it.
+class SequentialAcceptance {
+ public:
+  SequentialAcceptance(const std::vector<Pairing>& order, int seed_size,
+                       std::vector<int>& feature_of, const PairingModel& model, double gate);
+  // Returns the work in units of eight multiply-adds.
+  std::int64_t step();
+  bool done() const { return next_ == static_cast<Eigen::Index>(order_.size()); }
+  std::int64_t remaining_work() const;
+  int removed() const { return removed_; }
+
+ private:
+  const std::vector<Pairing>& order_;
+  int seed_size_;
+  std::vector<int>& feature_of_;
+  const PairingModel& model_;
+  double gate_;
+  Eigen::MatrixXd lower_;  // factor of S_K, grown a block at a time
+  Eigen::VectorXd whitened_;
+  Eigen::MatrixXd cross_;
+  std::vector<Pairing> kept_;
+  Eigen::Index next_ = 0;
+  int removed_ = 0;
+};
+
+// enforce_joint_compatibility() as resumable work: S's blocks a pairing at a time, its
+// Cholesky factor a panel or tile at a time (ResumableCholesky), then, only if the hypothesis
+// fails, S^-1 a block of columns at a time and one removal per step. `work_unit` (multiply-adds)
+// sets the blocks from the sizes alone, so the result never depends on the slicing.
+class JointCompatibilityEnforcement {
+ public:
+  JointCompatibilityEnforcement(std::vector<int>& feature_of, const PairingModel& model,
+                                double confidence, std::int64_t work_unit);
+  // Returns the work in units of eight multiply-adds. InvalidArgument if S is not positive
+  // definite.
+  std::int64_t step();
+  bool done() const { return stage_ == Stage::Done; }
+  std::int64_t remaining_work() const;
+  int removed() const { return removed_; }
+  double joint_distance_sq() const { return distance_sq_; }
+
+ private:
+  enum class Stage { Stack, Factor, Test, Invert, Remove, Done };
+  std::vector<int>& feature_of_;
+  const PairingModel& model_;
+  double confidence_;
+  std::int64_t work_unit_;
+  Stage stage_ = Stage::Stack;
+  StackedHypothesis stacked_;  // covariance: S, then L in its lower triangle
+  ResumableCholesky cholesky_;
+  Eigen::MatrixXd information_;  // S^-1, then the information of the pairings still active
+  std::vector<bool> active_;
+  Eigen::Index next_ = 0;  // next pairing to stack, or next column of S^-1
+  Eigen::Index remaining_ = 0;
+  int removed_ = 0;
+  double distance_sq_ = 0.0;
+};
+
+// rjc() as resumable work, for map joins spread over many steps: advance() does at least one
+// step (a try's seed, one overlap measurement's conditional test, a try's completion, one step
+// of the verification) and stops once `budget` units of eight multiply-adds are spent. Every
+// step is the same computation in the same order as rjc() runs at once, so the result is
+// bitwise identical however the work is sliced, random draws included. The arguments must
+// outlive the search, which is neither copied nor moved (its steps keep references into it).
+class RjcSearch {
+ public:
+  RjcSearch(const CandidateLists& candidates, const PairingModel& model,
+            const RjcOptions& options = RjcOptions());
+  RjcSearch(const RjcSearch&) = delete;
+  RjcSearch& operator=(const RjcSearch&) = delete;
+
+  std::int64_t advance(std::int64_t budget);
+  bool done() const { return stage_ == Stage::Done; }
+  // Work left in the units of advance(): an estimate until the tries are over.
+  std::int64_t remaining_work() const;
+  // Valid once done().
+  const RjcResult& result() const { return result_; }
+
+ private:
+  enum class Stage { Start, Seed, Conditional, CompleteTry, Sequential, Joint, Done };
+  std::int64_t start();
+  std::int64_t seed();
+  std::int64_t conditional_next();
+  std::int64_t complete_try();
+  void end_of_tries();
+  std::int64_t try_cost() const;
+
+  const CandidateLists& candidates_;
+  const PairingModel& model_;
+  RjcOptions options_;
+  Stage stage_ = Stage::Start;
+  RjcResult result_;
+  std::vector<int> overlap_;
+  Jcbb star_free_;
+  double gate_ = 0.0;
+  std::mt19937_64 rng_;
+  std::vector<int> pool_;
+  std::vector<int> sample_;
+  CandidateLists sample_candidates_;
+  std::vector<int> feature_of_;
+  std::vector<int> used_features_;
+  std::vector<Pairing> hypothesis_;
+  std::vector<std::tuple<double, int, int>> conditional_;  // (distance^2, measurement, feature)
+  Eigen::MatrixXd seed_covariance_;  // S of the seed, then its factor
+  Eigen::VectorXd seed_whitened_;
+  double seed_distance_sq_ = 0.0;
+  Eigen::MatrixXd cross_;
+  std::size_t next_overlap_ = 0;  // next overlap measurement of the conditional test
+  int best_pairings_ = 0;
+  double best_score_ = 0.0;
+  std::vector<Pairing> order_, best_order_;  // pairings in the order the try accepted them
+  double p_good_ = 0.0;
+  double tries_wanted_ = 0.0;
+  std::optional<SequentialAcceptance> sequential_;
+  std::optional<JointCompatibilityEnforcement> joint_;
+};
 
 }  // namespace dcslam

@@ -56,7 +56,8 @@ class PipelineResult:
             (-1: rejected, or a feature removed later).
         stats: the filter's per-step statistics (:class:`~dcslam.DCSlamStats` for D&C).
         estimate_seconds: time of the final :meth:`~dcslam.SlamFilter.estimate` call; for
-            D&C it includes the joins of the maps left on the stack.
+            D&C it includes the joins still queued (run by ``finish_joins()``, so that
+            ``resolve()`` reflects them) and the joins of the maps left on the stack.
         wall_seconds: wall time of the whole run, Python loop included.
     """
 
@@ -192,6 +193,11 @@ class SlamPipeline:
                 timestamps[k] = k if when is None else when
                 advance()
         estimate_started = time.perf_counter()
+        if isinstance(slam, DCSlam):
+            # Joins still queued at the end (their deadlines lie past the last step) are run
+            # for real, so that resolve() and stats.joins include them; estimate() then only
+            # folds the stack.
+            slam.finish_joins()
         estimate = slam.estimate()
         finished = time.perf_counter()
         counts = [len(ids) for ids in returned_ids]

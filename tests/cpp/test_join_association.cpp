@@ -225,6 +225,57 @@ TEST_P(JoinAssociationModes, NoOverlapPairsNothing) {
   EXPECT_EQ(result.tries, 0);
 }
 
+// The association a step at a time (budget 1), or a few hundred units at a time, is
+// associate_maps() at once, bitwise; and so is a whole MapJoin run in slices.
+TEST_P(JoinAssociationModes, ResumedInSlicesGivesBitwiseTheSameResult) {
+  std::mt19937_64 rng(21);
+  World world;
+  world.landmarks = landmark_field(Vec2(-3, -3), Vec2(15, 15), 150, 1.0, rng);
+  const auto path = square_path(72, 12);
+  add_clutter(world, path, 0, 48, 15, rng);
+  add_clutter(world, path, 48, 72, 10, rng);
+  const auto [first, second] = two_local_maps(simulate(world, path, 5), 48);
+  const JoinOptions options = options_for(GetParam());
+  const JoinFrame frame(first, second);
+  const JoinAssociationResult at_once = associate_maps(frame, options);
+  ASSERT_GT(at_once.overlap, 3 * options.rjc_b);  // RJC really runs in "rjc" mode
+  for (std::int64_t budget : {1, 300}) {
+    JoinAssociator associator(frame, options);
+    std::int64_t calls = 0;
+    while (!associator.done()) {
+      EXPECT_GT(associator.remaining_work(), 0);
+      associator.advance(budget);
+      ++calls;
+    }
+    // One step a call: the hash, then a call per m2 feature, then the decision's own.
+    if (budget == 1) {
+      EXPECT_GT(calls, second.num_features() + 1);
+    }
+    EXPECT_EQ(associator.result().pairs, at_once.pairs);
+    EXPECT_EQ(associator.result().overlap, at_once.overlap);
+    EXPECT_EQ(associator.result().tries, at_once.tries);
+    EXPECT_EQ(associator.remaining_work(), 0);
+  }
+
+  const auto m1 = std::make_shared<const GaussianMap>(first);
+  const auto m2 = std::make_shared<const GaussianMap>(second);
+  MapJoin whole(m1, m2, options);
+  whole.finish();
+  ASSERT_GT(whole.report().pairings, 0);
+  const GaussianMap a = whole.take_result();
+  for (std::int64_t budget : {1, 50}) {
+    MapJoin sliced(m1, m2, options);
+    while (!sliced.done()) sliced.advance(budget);
+    EXPECT_EQ(sliced.report().pairings, whole.report().pairings);
+    EXPECT_EQ(sliced.report().tries, whole.report().tries);
+    EXPECT_EQ(sliced.merged_ids(), whole.merged_ids());
+    const GaussianMap b = sliced.take_result();
+    EXPECT_EQ(a.ids(), b.ids());
+    EXPECT_TRUE((a.x().array() == b.x().array()).all());
+    EXPECT_TRUE((a.P().array() == b.P().array()).all());
+  }
+}
+
 INSTANTIATE_TEST_SUITE_P(Modes, JoinAssociationModes,
                          ::testing::Values(JoinAssociation::Jcbb, JoinAssociation::Rjc));
 

@@ -208,6 +208,32 @@ TEST(Rjc, SmallOverlapRunsPlainJcbb) {
   EXPECT_EQ(result.pairings, direct.pairings);
 }
 
+// RjcSearch spread over many calls (one step each, or a few units of work each) is rjc() at
+// once, bitwise: the same draws, tries, pairings and D^2.
+TEST(Rjc, ResumedInSlicesGivesBitwiseTheSameResult) {
+  const JoinProblem problem = grid_join(7, 0, 6, 3, 9);
+  RjcOptions options;
+  options.seed = 5;
+  const RjcResult at_once = rjc(problem.candidates, problem.model, options);
+  ASSERT_GT(at_once.tries, 1);
+  for (std::int64_t budget : {1, 7, 300}) {
+    RjcSearch search(problem.candidates, problem.model, options);
+    int calls = 0;
+    while (!search.done()) {
+      EXPECT_GT(search.advance(budget), 0);
+      ++calls;
+    }
+    EXPECT_GT(calls, at_once.tries) << "budget " << budget;
+    const RjcResult& sliced = search.result();
+    EXPECT_EQ(sliced.feature_of, at_once.feature_of);
+    EXPECT_EQ(sliced.tries, at_once.tries);
+    EXPECT_EQ(sliced.pairings, at_once.pairings);
+    EXPECT_EQ(sliced.dropped, at_once.dropped);
+    EXPECT_EQ(sliced.joint_distance_sq, at_once.joint_distance_sq);
+    EXPECT_EQ(search.remaining_work(), 0);
+  }
+}
+
 TEST(Rjc, VerificationDropsTheInconsistentPairing) {
   const JoinProblem problem = grid_join(7, 0, 6, 3, 9);
   std::vector<int> feature_of = problem.truth;
@@ -219,6 +245,20 @@ TEST(Rjc, VerificationDropsTheInconsistentPairing) {
   EXPECT_EQ(enforce_joint_compatibility(feature_of, problem.model, 0.99, &distance_sq), 1);
   EXPECT_EQ(feature_of, problem.truth);
   EXPECT_NEAR(distance_sq, joint_distance_sq(problem.truth, problem.model), 1e-8);
+  // Removal through S^-1 formed a column at a time and S factored in one-column tiles: the
+  // same decision.
+  std::vector<int> sliced = problem.truth;
+  sliced[spurious] = 5 * 6 + 0;
+  JointCompatibilityEnforcement enforcement(sliced, problem.model, 0.99, 1);
+  int steps = 0;
+  while (!enforcement.done()) {
+    enforcement.step();
+    ++steps;
+  }
+  EXPECT_GT(steps, static_cast<int>(problem.truth.size()));
+  EXPECT_EQ(enforcement.removed(), 1);
+  EXPECT_EQ(sliced, problem.truth);
+  EXPECT_NEAR(enforcement.joint_distance_sq(), distance_sq, 1e-8);
   // A compatible hypothesis is left as it is, with its own D^2.
   EXPECT_EQ(enforce_joint_compatibility(feature_of, problem.model, 0.99, &distance_sq), 0);
   EXPECT_EQ(feature_of, problem.truth);

@@ -1,0 +1,39 @@
+#pragma once
+// S = L L' of a symmetric positive definite matrix, in place in its lower triangle, as
+// resumable work (right-looking, blocked): a step either factors one panel's diagonal block
+// and solves the panel below it, or applies the panel to one tile of columns of the trailing
+// lower triangle. The panels and tiles depend only on the matrix size, the panel width and the
+// work unit, never on how the steps are spread over calls, so the factor is bitwise the same
+// however it is sliced (amortized D&C runs one step per frame when the budget is small).
+#include <cstdint>
+
+#include <Eigen/Core>
+
+namespace dcslam {
+
+class ResumableCholesky {
+ public:
+  ResumableCholesky() = default;
+  // `work_unit` bounds one step's multiply-adds where the sizes allow (a tile is at least one
+  // column wide).
+  ResumableCholesky(Eigen::Index size, Eigen::Index panel_width, std::int64_t work_unit);
+
+  // One step on `S` (the same matrix, sized `size`, every call). Returns its work in units of
+  // eight multiply-adds, or -1 if a diagonal block is not positive definite (S is then left
+  // partly factored and the factorisation is over).
+  std::int64_t step(Eigen::MatrixXd& S);
+  bool done() const { return next_panel_ >= size_ || failed_; }
+  bool failed() const { return failed_; }
+  // Work left in the units of step() (the trailing updates dominate: about size^3 / 3).
+  std::int64_t remaining_work() const;
+
+ private:
+  Eigen::Index size_ = 0;
+  Eigen::Index panel_width_ = 1;
+  std::int64_t work_unit_ = 1;
+  Eigen::Index next_panel_ = 0;   // first column of the panel being factored or applied
+  Eigen::Index next_tile_ = -1;   // -1: the panel is not factored yet; else the next tile column
+  bool failed_ = false;
+};
+
+}  // namespace dcslam
