@@ -181,6 +181,14 @@ void JoinAssociator::finish(const std::vector<int>& feature_of) {
   stage_ = Stage::Done;
 }
 
+std::int64_t JoinAssociator::expected_overlap() const {
+  if (stage_ == Stage::Prepare) return 0;
+  if (stage_ != Stage::Candidates) return result_.overlap;
+  if (next_second_ == 0) return 0;
+  return static_cast<std::int64_t>(result_.overlap) * static_cast<std::int64_t>(candidates_.size()) /
+         static_cast<std::int64_t>(next_second_);
+}
+
 std::int64_t JoinAssociator::remaining_work() const {
   switch (stage_) {
     case Stage::Prepare:

@@ -195,14 +195,15 @@ MapJoin::~MapJoin() = default;
 
 // A written element of the result costs a write plus a dot product of length 3 + 2r; one
 // unit of work is about eight multiply-adds, so budgets mean time across joins of any r.
+std::int64_t MapJoin::fill_element_cost(std::int64_t r) { return 1 + (3 + 2 * r) / 8; }
 std::int64_t MapJoin::fill_element_cost() const {
-  return 1 + (3 + 2 * static_cast<std::int64_t>(pairs_.size())) / 8;
+  return fill_element_cost(static_cast<std::int64_t>(pairs_.size()));
 }
 
 // A row of the triangular solve costs about (2r)^2 / 2 multiply-adds.
+std::int64_t MapJoin::solve_row_cost(std::int64_t r) { return std::max<std::int64_t>(1, r * r / 4); }
 std::int64_t MapJoin::solve_row_cost() const {
-  const auto r = static_cast<std::int64_t>(pairs_.size());
-  return std::max<std::int64_t>(1, r * r / 4);
+  return solve_row_cost(static_cast<std::int64_t>(pairs_.size()));
 }
 
 // Rows of the solve per unit of work, sized in multiply-adds: with r in the hundreds a fixed
@@ -226,12 +227,18 @@ std::int64_t MapJoin::remaining_work() const {
   std::int64_t work = left * (left + 1) / 2 * fill_element_cost();
   const Index solve_rows = first_->dim() + second_->dim();
   switch (phase_) {
-    case Phase::Associate:
-      // r is unknown until association: counted as 0 here (the cost grows once the pairs are
-      // known; a later deadline absorbs that, where an upper bound would inflate every budget).
-      return work + static_cast<std::int64_t>(solve_rows) +
+    case Phase::Associate: {
+      // r is unknown until association; the overlap found so far, extrapolated over m2, stands
+      // in for it (an upper bound on r once the candidates are known). Counting 0 instead
+      // left joins with r in the hundreds (the snail) to catch up in a few steps of 10 ms;
+      // a bound from the map sizes would inflate every budget where r is small.
+      const std::int64_t r = associator_ ? associator_->expected_overlap() : 0;
+      return left * (left + 1) / 2 * fill_element_cost(r) +
+             static_cast<std::int64_t>(solve_rows) * solve_row_cost(r) +
+             (r > 0 ? (options_.max_iterations - 1) * relinearise_step_cost(r) : 0) +
              (associator_ ? associator_->remaining_work()
                           : first_->num_features() + second_->num_features());
+    }
     case Phase::Relinearise:
       // At most max_iterations - 1 steps, small next to the fill.
       return work + static_cast<std::int64_t>(solve_rows) * solve_row_cost() +
@@ -402,9 +409,11 @@ void MapJoin::finish_association() {
 // One Gauss–Newton step over s = [R1; matched f_i; matched f_j]: the sparse products with
 // H (7 non-zeros a row) and the Cholesky factor of the 2r x 2r S, in units of eight
 // multiply-adds.
-std::int64_t MapJoin::relinearise_step_cost() const {
-  const auto r = static_cast<std::int64_t>(pairs_.size());
+std::int64_t MapJoin::relinearise_step_cost(std::int64_t r) {
   return std::max<std::int64_t>(1, (14 * r * (3 + 6 * r) + 8 * r * r * r / 3) / 8);
+}
+std::int64_t MapJoin::relinearise_step_cost() const {
+  return relinearise_step_cost(static_cast<std::int64_t>(pairs_.size()));
 }
 
 // The iterated EKF with noise-free constraints c(x) = f_i - (R1 ⊕ f_j) = 0, i.e. Gauss–Newton
@@ -779,7 +788,7 @@ std::int64_t MapJoin::assemble_next_rows() {
     next_out_col_ = 0;
     next_fill_row_ = 0;
   }
-  return done * (6 + k) / 4 + 1;
+  return done * (6 + k) * 2 + 1;  // 16 multiply-adds' worth an element, as sized above
 }
 
 // Applies J_2 (block-diagonal rotations: Rot on the (x, y) of the robot, of each feature and
@@ -871,6 +880,12 @@ std::int64_t MapJoin::fill_next_block() {
   const Index tile = std::max<Index>(64, options_.work_unit / (width * (19 + k)));
   const Index row1 = std::min(out_dim, row0 + tile);
   const Index rows = row1 - row0;
+  if (row0 == col && col > 0) {
+    // The rows above the diagonal are the earlier blocks' transposed. Written here, with the
+    // block, rather than by each earlier block into every later column: a fresh result's pages
+    // are then first touched a block at a time, not all in one unit of work.
+    out.block(0, col, col, width) = out.block(col, 0, width, col).transpose();
+  }
   for (const Segment& segment : segments_) {
     const Index begin = std::max(row0, segment.out_begin);
     const Index end = std::min(row1, segment.out_begin + segment.size);
@@ -894,11 +909,7 @@ std::int64_t MapJoin::fill_next_block() {
         right_first_.middleRows(local_col, width).transpose();
   }
   next_fill_row_ = row1;
-  if (row1 == out_dim) {  // block done: mirror it into the rows above the later columns
-    const Index below = out_dim - col - width;
-    if (below > 0) {
-      out.block(col, col + width, width, below) = out.block(col + width, col, below, width).transpose();
-    }
+  if (row1 == out_dim) {
     next_out_col_ += width;
     next_fill_row_ = 0;
   }
@@ -910,7 +921,7 @@ void MapJoin::release_inputs() {
   first_.reset();
   second_.reset();
   lin_second_x_ = Eigen::VectorXd();
-  left_ = Eigen::MatrixXd();
+  left_ = decltype(left_)();
   right_first_ = Eigen::MatrixXd();
   right_second_ = Eigen::MatrixXd();
   scratch_ = Eigen::MatrixXd();

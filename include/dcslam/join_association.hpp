@@ -60,6 +60,9 @@ class JoinAssociator {
   // Work left in the units of advance(). The decision's share is only known once the overlap
   // is (counted as 0 before, as the join counts the constraints' before association).
   std::int64_t remaining_work() const;
+  // The overlap (features of m2 with a candidate, at least the pairings to come): counted
+  // once the candidates are known, extrapolated over m2 while they are searched, 0 before.
+  std::int64_t expected_overlap() const;
   // Valid once done().
   const JoinAssociationResult& result() const { return result_; }
 

@@ -161,6 +161,8 @@ class MapJoin {
   void begin_relinearisation();
   std::int64_t relinearise_unit();
   std::int64_t finish_relinearisation();
+  // Costs for r pairings (the members use this join's r, once associated).
+  static std::int64_t relinearise_step_cost(std::int64_t r);
   std::int64_t relinearise_step_cost() const;
   // The constraints at the linearisation point: kept elements of m2, then P H' and h a few
   // pairs per unit of work (O(n) a pair), then S = H P H' factored a panel at a time.
@@ -189,6 +191,8 @@ class MapJoin {
   void rotate_second_columns(Eigen::Ref<Eigen::MatrixXd> block, Eigen::Index local_begin,
                              Eigen::Index features_end) const;
   void release_inputs();
+  static std::int64_t fill_element_cost(std::int64_t r);
+  static std::int64_t solve_row_cost(std::int64_t r);
   std::int64_t fill_element_cost() const;
   std::int64_t solve_row_cost() const;
 
@@ -257,7 +261,9 @@ class MapJoin {
   Eigen::MatrixXd constraint_factor_;  // S, becoming L (S = L L') in its lower triangle
   Eigen::VectorXd whitened_h_;         // h, then L^-1 h
   Eigen::Index next_solve_row_ = 0;
-  Eigen::MatrixXd left_;
+  // Row-major: the assembly writes it a row at a time, so its pages are first touched a few
+  // rows per unit of work rather than all of them by the first row.
+  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> left_;
   Eigen::MatrixXd right_second_;
   Eigen::MatrixXd right_first_;
   Mat2 rotation_;
