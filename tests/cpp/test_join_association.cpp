@@ -157,18 +157,22 @@ int count_clutter(const Pairs& pairs, const GaussianMap& first, const GaussianMa
   return clutter;
 }
 
-class JoinAssociationModes : public ::testing::TestWithParam<JoinAssociation> {};
-
 // A square loop driven once and a half: m1 is the first lap, m2 the rest, so the join closes
 // the loop; each map also holds spurious features that the other does not have.
-TEST_P(JoinAssociationModes, LoopClosureWithClutterPairsTrueFeaturesOnly) {
+std::pair<GaussianMap, GaussianMap> loop_closure_with_clutter() {
   std::mt19937_64 rng(21);
   World world;
   world.landmarks = landmark_field(Vec2(-3, -3), Vec2(15, 15), 150, 1.0, rng);
   const auto path = square_path(72, 12);
   add_clutter(world, path, 0, 48, 15, rng);
   add_clutter(world, path, 48, 72, 10, rng);
-  const auto [first, second] = two_local_maps(simulate(world, path, 5), 48);
+  return two_local_maps(simulate(world, path, 5), 48);
+}
+
+class JoinAssociationModes : public ::testing::TestWithParam<JoinAssociation> {};
+
+TEST_P(JoinAssociationModes, LoopClosureWithClutterPairsTrueFeaturesOnly) {
+  const auto [first, second] = loop_closure_with_clutter();
   const Pairs truth = associate_by_id(first, second);
   ASSERT_GE(truth.size(), 30u);
   auto clutter_features = [](const GaussianMap& map) {
@@ -228,13 +232,7 @@ TEST_P(JoinAssociationModes, NoOverlapPairsNothing) {
 // The association a step at a time (budget 1), or a few hundred units at a time, is
 // associate_maps() at once, bitwise; and so is a whole MapJoin run in slices.
 TEST_P(JoinAssociationModes, ResumedInSlicesGivesBitwiseTheSameResult) {
-  std::mt19937_64 rng(21);
-  World world;
-  world.landmarks = landmark_field(Vec2(-3, -3), Vec2(15, 15), 150, 1.0, rng);
-  const auto path = square_path(72, 12);
-  add_clutter(world, path, 0, 48, 15, rng);
-  add_clutter(world, path, 48, 72, 10, rng);
-  const auto [first, second] = two_local_maps(simulate(world, path, 5), 48);
+  const auto [first, second] = loop_closure_with_clutter();
   const JoinOptions options = options_for(GetParam());
   const JoinFrame frame(first, second);
   const JoinAssociationResult at_once = associate_maps(frame, options);
