@@ -884,7 +884,11 @@ std::int64_t MapJoin::fill_next_block() {
     // The rows above the diagonal are the earlier blocks' transposed. Written here, with the
     // block, rather than by each earlier block into every later column: a fresh result's pages
     // are then first touched a block at a time, not all in one unit of work.
-    out.block(0, col, col, width) = out.block(col, 0, width, col).transpose();
+    // In square tiles: one long transposed copy runs at a fraction of the speed.
+    for (Index c0 = 0; c0 < col; c0 += options_.block_columns) {
+      const Index tile_width = std::min(options_.block_columns, col - c0);
+      out.block(c0, col, tile_width, width) = out.block(col, c0, width, tile_width).transpose();
+    }
   }
   for (const Segment& segment : segments_) {
     const Index begin = std::max(row0, segment.out_begin);
