@@ -197,7 +197,6 @@ void DCSlam::push_and_merge(std::shared_ptr<Node> node) {
   const double steps_per_local_map =
       static_cast<double>(steps_in_closed_maps_) / static_cast<double>(closed_local_maps_);
   std::vector<std::shared_ptr<JoinTask>> chain;  // joins created now, each waiting on the last
-  std::vector<double> chain_work;
   while (!stack_.empty() && node->leaves >= stack_.back()->leaves) {
     auto task = std::make_shared<JoinTask>();
     task->index = joins_created_++;
@@ -219,9 +218,7 @@ void DCSlam::push_and_merge(std::shared_ptr<Node> node) {
     task->deadline_step =
         steps_ + std::max<std::int64_t>(1, static_cast<std::int64_t>(
                                                0.5 * result->leaves * steps_per_local_map));
-    const auto dim = static_cast<double>(3 + 2 * result->expected_features);
     chain.push_back(task);
-    chain_work.push_back(dim * dim);
     JoinEvent event;
     event.index = task->index;
     event.leaves = result->leaves;
@@ -239,12 +236,16 @@ void DCSlam::push_and_merge(std::shared_ptr<Node> node) {
   // only what its predecessors' own deadlines leave (a few ms a step for the snail's
   // 128-leaf join, squeezed into its last 120 steps).
   if (chain.size() > 1) {
+    const auto fill = [](const JoinTask& task) {
+      const auto dim = static_cast<double>(task.result.lock()->expected_dim());
+      return dim * dim;
+    };
     double total = 0.0;
-    for (double work : chain_work) total += work;
+    for (const auto& task : chain) total += fill(*task);
     const auto window = static_cast<double>(chain.back()->deadline_step - steps_);
     double done = 0.0;
     for (std::size_t k = 0; k + 1 < chain.size(); ++k) {
-      done += chain_work[k];
+      done += fill(*chain[k]);
       chain[k]->deadline_step = std::min(
           chain[k]->deadline_step,
           steps_ + std::max<std::int64_t>(1, static_cast<std::int64_t>(window * done / total)));
@@ -260,9 +261,7 @@ void DCSlam::run_amortized_budget() {
   double budget = 0.0;
   for (const auto& task : queue_) {
     // A join not started yet: its fill before association (as MapJoin::remaining_work()).
-    const Node& result = *task->result.lock();
-    const auto dim = static_cast<std::int64_t>(3 + 2 * result.expected_features +
-                                               3 * result.expected_poses);
+    const std::int64_t dim = task->result.lock()->expected_dim();
     const std::int64_t remaining =
         task->join ? task->join->remaining_work() : dim * (dim + 1) / 2 + 2 * dim;
     budget += static_cast<double>(remaining) /

@@ -81,6 +81,10 @@ class DCSlam : public SlamFilter {
     std::int64_t first_leaf = 0;  // the node holds local maps first_leaf .. first_leaf+leaves-1
     std::int64_t expected_features = 0;
     std::int64_t expected_poses = 0;  // past poses (keep_local_map_poses)
+    std::int64_t expected_dim() const {
+      return GaussianMap::kRobotDim + GaussianMap::kFeatureDim * expected_features +
+             GaussianMap::kPoseDim * expected_poses;
+    }
     // Id of the node's robot as a past pose: the predict() calls made before its last local
     // map closed.
     std::int64_t robot_id = 0;
