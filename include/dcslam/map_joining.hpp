@@ -210,6 +210,7 @@ class MapJoin {
   Eigen::VectorXd lin_second_x_;
   struct GaussNewton {  // state kept between the units of the re-linearisation
     Eigen::VectorXd prior, point, multipliers;  // s0, s, λ of the last step
+    Eigen::VectorXd dual;                       // g with s - s0 = P_ss g (H'λ at a KKT point)
     Eigen::MatrixXd covariance;                 // P_ss
     Eigen::Index gathered = 0;                  // columns of s0 and P_ss gathered so far
     Eigen::MatrixXd gain, factor;               // P_ss H' and S (becoming L) of this step
@@ -221,6 +222,7 @@ class MapJoin {
     std::vector<Eigen::Index> first_rows;       // rows of R1 and the matched f_i in m1
     std::vector<Eigen::Index> second_rows;      // rows of the matched f_j in m2
     Mat2 rotation = Mat2::Identity();           // R1's rotation where the last step linearised
+    double moved = 0.0;                         // the last step, in units of tolerance
     int steps = 0;
     bool converged = true;
   } gauss_newton_;
