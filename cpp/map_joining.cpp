@@ -219,11 +219,17 @@ Index MapJoin::solve_rows_per_unit() const {
 std::int64_t MapJoin::remaining_work() const {
   if (phase_ == Phase::Done) return 0;
   // The fill writes the lower triangle of the columns not yet done; the solve, once the
-  // pairs are known, costs solve_row_cost() a row.
+  // pairs are known, costs solve_row_cost() a row. Before association the result's size is bounded by the inputs'; after, the matched and
+  // dropped features are known to go (counting them overstated the snail's 128-leaf join by
+  // half, and with it the budget of every step before its fill).
+  const Index bound = first_->dim() + second_->dim() -
+                      (options_.keep_first_robot ? 0 : GaussianMap::kRobotDim);
   const Index out_dim =
       phase_ == Phase::Fill ? result_.dim()
-                            : first_->dim() + second_->dim() -
-                                  (options_.keep_first_robot ? 0 : GaussianMap::kRobotDim);
+      : phase_ == Phase::Associate
+          ? bound
+          : bound - GaussianMap::kFeatureDim *
+                        static_cast<Index>(pairs_.size() + dropped_ids_.size());
   const auto left = static_cast<std::int64_t>(out_dim - next_out_col_);
   std::int64_t work = left * (left + 1) / 2 * fill_element_cost();
   const Index solve_rows = first_->dim() + second_->dim();
@@ -407,11 +413,12 @@ void MapJoin::finish_association() {
   report_.dropped_tentative = static_cast<int>(dropped_ids_.size());
 }
 
-// One Gauss–Newton step over s = [R1; matched f_i; matched f_j]: the sparse products with
-// H (7 non-zeros a row) and the Cholesky factor of the 2r x 2r S, in units of eight
-// multiply-adds.
+// One step over s = [R1; matched f_i; matched f_j] (dimension ds = 3 + 4r), as its units
+// count it: P_ss H' (5 ds a pair), S's lower triangle (11 r^2 / 2), the Cholesky factor of the
+// 2r x 2r S ((2r)^3 / 3 multiply-adds), and the solves and products (2 ds r + 3 r^2).
 std::int64_t MapJoin::relinearise_step_cost(std::int64_t r) {
-  return std::max<std::int64_t>(1, (14 * r * (3 + 6 * r) + 8 * r * r * r / 3) / 8);
+  const std::int64_t ds = 3 + 4 * r;
+  return std::max<std::int64_t>(1, 7 * ds * r + 17 * r * r / 2 + r * r * r / 3);
 }
 std::int64_t MapJoin::relinearise_step_cost() const {
   return relinearise_step_cost(static_cast<std::int64_t>(pairs_.size()));
@@ -465,8 +472,8 @@ std::int64_t MapJoin::relinearise_unit() {
   Eigen::MatrixXd& P_ss = gn.covariance;
   Eigen::VectorXd& s = gn.point;
   if (gn.gathered < ds) {
-    // A gathered element is a strided read: about 16 multiply-adds' worth.
-    const Index columns = std::max<Index>(1, options_.work_unit / (16 * ds));
+    // A gathered element is a strided read: about 24 multiply-adds' worth.
+    const Index columns = std::max<Index>(1, options_.work_unit / (24 * ds));
     const Index begin = gn.gathered, end = std::min(ds, begin + columns);
     for (Index b = begin; b < end; ++b) {  // column by column: both are column-major
       const bool second = b >= second_begin;
@@ -490,12 +497,13 @@ std::int64_t MapJoin::relinearise_unit() {
       gn.point = s0;
       gn.dual.setZero(ds);
     }
-    return 2 * static_cast<std::int64_t>((end - begin) * ds);
+    return 3 * static_cast<std::int64_t>((end - begin) * ds);
   }
   if (gn.next_panel < 0) {
     Eigen::MatrixXd& PHt = gn.gain;
     Eigen::MatrixXd& S = gn.factor;
-    // A pair's columns of P_ss H' cost about 14 ds multiply-adds, its rows of S 24 r.
+    // Units are sized by multiply-adds (14 ds for a pair's columns of P_ss H', up to 24 r for
+    // its column of S); the work they return is calibrated to time (relinearise_step_cost()).
     const Index pairs_per_unit = std::max<Index>(1, options_.work_unit / (14 * ds + 24 * r));
     Mat2& rotation = gn.rotation;
     if (gn.next_build == 0) {
@@ -526,22 +534,28 @@ std::int64_t MapJoin::relinearise_unit() {
             P_ss.middleCols<2>(second_begin + 2 * k) * rotation.transpose();
       }
       gn.next_build = end;
-      return std::max<std::int64_t>(1, static_cast<std::int64_t>(14 * ds * (end - begin)) / 8);
+      return std::max<std::int64_t>(1, static_cast<std::int64_t>(5 * ds * (end - begin)));
     }
-    if (begin < 2 * r) {
-      const Index end = std::min(2 * r, begin + pairs_per_unit);
-      for (Index k = begin - r; k < end - r; ++k) {
-        S.middleRows<2>(2 * k).noalias() = PHt.middleRows<2>(3 + 2 * k);
-        S.middleRows<2>(2 * k).noalias() -= gn.robot_jacobians[static_cast<std::size_t>(k)] * PHt.topRows<3>();
-        S.middleRows<2>(2 * k).noalias() -= rotation * PHt.middleRows<2>(second_begin + 2 * k);
+    // S's lower triangle (all the factor reads), a few of its pair columns per unit: column by
+    // column, the reads of P_ss H' are contiguous (row by row they were a cache miss each).
+    const Index end = std::min(2 * r, begin + pairs_per_unit);
+    std::int64_t work = 0;
+    for (Index k = begin - r; k < end - r; ++k) {
+      const Eigen::Matrix<double, 3, 2> robot_rows = PHt.block<3, 2>(0, 2 * k);
+      for (Index l = k; l < r; ++l) {
+        auto block = S.block<2, 2>(2 * l, 2 * k);
+        block = PHt.block<2, 2>(3 + 2 * l, 2 * k);
+        block.noalias() -= gn.robot_jacobians[static_cast<std::size_t>(l)] * robot_rows;
+        block.noalias() -= rotation * PHt.block<2, 2>(second_begin + 2 * l, 2 * k);
       }
-      gn.next_build = end;
-      return std::max<std::int64_t>(1, static_cast<std::int64_t>(24 * r * (end - begin)) / 8);
+      work += 11 * (r - k);
     }
-    S = 0.5 * (S + S.transpose()).eval();
-    gn.next_build = 0;
-    gn.next_panel = 0;
-    return std::max<std::int64_t>(1, static_cast<std::int64_t>(r * r));
+    gn.next_build = end;
+    if (end == 2 * r) {
+      gn.next_build = 0;
+      gn.next_panel = 0;
+    }
+    return std::max<std::int64_t>(1, work);
   }
   if (gn.next_panel < gn.factor.rows()) {
     const std::int64_t cost = factor_panel(gn.factor, gn.next_panel, options_.block_columns);
@@ -646,8 +660,8 @@ std::int64_t MapJoin::relinearise_unit() {
   ++gn.steps;
   if (gn.steps + 1 >= options_.max_iterations) gn.converged = true;
   gn.next_panel = -1;
-  // Both steps' solves and products: about 2 ds r + 4 r^2 beyond the Gauss–Newton step's ds r.
-  return std::max<std::int64_t>(1, static_cast<std::int64_t>(3 * ds * r + 4 * r * r) / 4);
+  // Both steps' solves and products, memory-bound: three passes over ds x 2r matrices.
+  return std::max<std::int64_t>(1, static_cast<std::int64_t>(2 * ds * r + 3 * r * r));
 }
 
 std::int64_t MapJoin::finish_relinearisation() {
@@ -735,7 +749,7 @@ std::int64_t MapJoin::constrain_next_pairs() {
   }
   const std::int64_t pairs_done = end - next_pair_;
   next_pair_ = end;
-  return pairs_done * 2 * static_cast<std::int64_t>(gain_.rows());
+  return pairs_done * 9 * static_cast<std::int64_t>(gain_.rows());
 }
 
 // S = H P H' from the rows of P H' (O(r^2)); the factorisation then runs a panel at a time.
@@ -835,43 +849,58 @@ std::int64_t MapJoin::assemble_next_rows() {
   const Mat3 P1_RR = P1.topLeftCorner<3, 3>();
   const Eigen::VectorXd& v = whitened_h_;
   auto x = result_.x();
-  // Row-wise copies out of and into column-major matrices are strided: about 16
-  // multiply-adds' worth per element.
-  const Index rows = std::max<Index>(16, options_.work_unit / (16 * (6 + k)));
+  const Index rows = std::max<Index>(16, options_.work_unit / (kAssembleElementCost * (6 + k)));
   const Index end = std::min(out_dim, next_assemble_row_ + rows);
-  for (Index o = next_assemble_row_; o < end; ++o) {
+  // Runs of rows whose sources are consecutive rows of one input are copied as blocks: a row
+  // at a time, the reads of the column-major W and the writes of N were one cache miss each.
+  for (Index o = next_assemble_row_; o < end;) {
     const Segment& segment = segment_of(o);
     const Index a = segment.local_begin + (o - segment.out_begin);
-    if (!segment.second) {  // an m1 element: L = [A1 | W | 0], N = [-W | A1]
-      const Index src = first_kept_rows_[static_cast<std::size_t>(a)];
-      const auto W_row = gain_.row(src);
-      left_.block<1, 3>(o, 0) = P1.block<1, 3>(src, 0);
-      left_.row(o).segment(3, k) = W_row;
-      left_.block<1, 3>(o, 3 + k).setZero();
-      right_first_.row(a).head(k) = -W_row;
-      right_first_.block<1, 3>(a, k) = P1.block<1, 3>(src, 0);
-      x(o) = m1.x()(src) - W_row.dot(v);
+    const std::vector<Index>& kept = segment.second ? second_kept_rows_ : first_kept_rows_;
+    const Index src = kept[static_cast<std::size_t>(a)];
+    Index length = 1;
+    const Index segment_end = std::min(end, segment.out_begin + segment.size);
+    while (o + length < segment_end && kept[static_cast<std::size_t>(a + length)] == src + length) {
+      ++length;
+    }
+    auto L = left_.middleRows(o, length);
+    auto xs = x.segment(o, length);
+    if (!segment.second) {  // m1 elements: L = [A1 | W | 0], N = [-W | A1]
+      const auto W = gain_.middleRows(src, length);
+      L.leftCols<3>() = P1.block(src, 0, length, 3);
+      L.middleCols(3, k) = W;
+      L.rightCols<3>().setZero();
+      right_first_.block(a, 0, length, k) = -W;
+      right_first_.block(a, k, length, 3) = P1.block(src, 0, length, 3);
+      xs = m1.x().segment(src, length);
+      xs.noalias() -= W * v;
       // The headings of m1's poses (and of R1) are corrected too: wrapped again.
-      if (a >= first_features_end && (a - first_features_end) % 3 == 2) x(o) = wrap_angle(x(o));
-      continue;
+      for (Index e = 0; e < length; ++e) {
+        if (a + e >= first_features_end && (a + e - first_features_end) % 3 == 2) xs(e) = wrap_angle(xs(e));
+      }
+    } else {  // m2's robot, features or poses: L = [J_R P1_RR | W | J_R], N = [J_R | -W]
+      const auto W = gain_.middleRows(d1 + src, length);
+      const auto J = J_R_kept_.middleRows(a, length);
+      L.leftCols<3>().noalias() = J * P1_RR;
+      L.middleCols(3, k) = W;
+      L.rightCols<3>() = J;
+      right_second_.block(a, 0, length, 3) = J;
+      right_second_.block(a, 3, length, k) = -W;
+      for (Index e = 0; e < length; ++e) {
+        const Index s = src + e;
+        if (s >= 3 && s < second_poses_begin) {
+          xs(e) = frame.moved_second_feature((s - 3) / 2)((s - 3) % 2);
+        } else {
+          const Index offset = s < 3 ? 0 : s - (s - second_poses_begin) % 3;
+          xs(e) = frame.moved_second_pose(offset)(s - offset);
+        }
+      }
+      xs.noalias() -= W * v;
+      for (Index e = 0; e < length; ++e) {
+        if (second_role(a + e, second_features_end) == Role::Heading) xs(e) = wrap_angle(xs(e));
+      }
     }
-    // m2's robot, feature or pose: L = [J_R P1_RR | W | J_R], N = [J_R | -W].
-    const Index src = second_kept_rows_[static_cast<std::size_t>(a)];
-    const auto W_row = gain_.row(d1 + src);
-    left_.block<1, 3>(o, 0) = J_R_kept_.row(a) * P1_RR;
-    left_.row(o).segment(3, k) = W_row;
-    left_.block<1, 3>(o, 3 + k) = J_R_kept_.row(a);
-    right_second_.block<1, 3>(a, 0) = J_R_kept_.row(a);
-    right_second_.row(a).tail(k) = -W_row;
-    double moved;
-    if (src >= 3 && src < second_poses_begin) {
-      moved = frame.moved_second_feature((src - 3) / 2)((src - 3) % 2);
-    } else {
-      const Index offset = src < 3 ? 0 : src - (src - second_poses_begin) % 3;
-      moved = frame.moved_second_pose(offset)(src - offset);
-    }
-    x(o) = moved - W_row.dot(v);
-    if (second_role(a, second_features_end) == Role::Heading) x(o) = wrap_angle(x(o));
+    o += length;
   }
   const std::int64_t done = end - next_assemble_row_;
   next_assemble_row_ = end;
@@ -880,7 +909,7 @@ std::int64_t MapJoin::assemble_next_rows() {
     next_out_col_ = 0;
     next_fill_row_ = 0;
   }
-  return done * (6 + k) * 2 + 1;  // 16 multiply-adds' worth an element, as sized above
+  return done * (6 + k) * kAssembleElementCost / 8 + 1;
 }
 
 // Applies J_2 (block-diagonal rotations: Rot on the (x, y) of the robot, of each feature and

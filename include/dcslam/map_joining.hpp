@@ -251,6 +251,8 @@ class MapJoin {
   Eigen::Index second_kept_features_end() const;  // local index of m2's first kept pose
   Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_kept_;  // rows of J_R for the kept elements
   static constexpr Eigen::Index kPairsPerUnit = 16;
+  // Multiply-adds' worth of an assembled element (copies between column- and row-major blocks).
+  static constexpr Eigen::Index kAssembleElementCost = 48;
   Eigen::Index solve_rows_per_unit() const;
   bool relinearisation_started_ = false;
   // The association's frame (m2 moved into B1 at the prior means) and search, while it runs.
