@@ -218,10 +218,11 @@ Index MapJoin::solve_rows_per_unit() const {
 
 std::int64_t MapJoin::remaining_work() const {
   if (phase_ == Phase::Done) return 0;
-  // The fill writes the lower triangle of the columns not yet done; the solve, once the
-  // pairs are known, costs solve_row_cost() a row. Before association the result's size is bounded by the inputs'; after, the matched and
-  // dropped features are known to go (counting them overstated the snail's 128-leaf join by
-  // half, and with it the budget of every step before its fill).
+  // The fill writes the lower triangle of the columns not yet done; the assembly writes each
+  // result row's 6 + 2r low-rank factors; the solve, once the pairs are known, costs
+  // solve_row_cost() a row. Before association the result's size is bounded by the inputs';
+  // after, the matched and dropped features are known to go (counting them overstated the
+  // snail's 128-leaf join by half, and with it the budget of every step before its fill).
   const Index bound = first_->dim() + second_->dim() -
                       (options_.keep_first_robot ? 0 : GaussianMap::kRobotDim);
   const Index out_dim =
@@ -231,7 +232,15 @@ std::int64_t MapJoin::remaining_work() const {
           : bound - GaussianMap::kFeatureDim *
                         static_cast<Index>(pairs_.size() + dropped_ids_.size());
   const auto left = static_cast<std::int64_t>(out_dim - next_out_col_);
-  std::int64_t work = left * (left + 1) / 2 * fill_element_cost();
+  const auto assembly = [&](std::int64_t r) -> std::int64_t {
+    if (phase_ == Phase::Fill) return 0;
+    const Index rows = phase_ == Phase::Assemble && next_assemble_row_ >= 0
+                           ? result_.dim() - next_assemble_row_
+                           : out_dim;
+    return static_cast<std::int64_t>(rows) * (6 + 2 * r) * kAssembleElementCost / 8;
+  };
+  const auto r_known = static_cast<std::int64_t>(pairs_.size());
+  const std::int64_t work = left * (left + 1) / 2 * fill_element_cost() + assembly(r_known);
   const Index solve_rows = first_->dim() + second_->dim();
   switch (phase_) {
     case Phase::Associate: {
@@ -240,7 +249,7 @@ std::int64_t MapJoin::remaining_work() const {
       // left joins with r in the hundreds (the snail) to catch up in a few steps of 10 ms;
       // a bound from the map sizes would inflate every budget where r is small.
       const std::int64_t r = associator_ ? associator_->expected_overlap() : 0;
-      return left * (left + 1) / 2 * fill_element_cost(r) +
+      return left * (left + 1) / 2 * fill_element_cost(r) + assembly(r) +
              static_cast<std::int64_t>(solve_rows) * solve_row_cost(r) +
              (r > 0 ? (options_.max_iterations - 1) * relinearise_step_cost(r) : 0) +
              (associator_ ? associator_->remaining_work()
