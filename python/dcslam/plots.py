@@ -66,6 +66,9 @@ def plot_map(
 ) -> None:
     """The map with the 95 % ellipse of every landmark and the trajectory (Fig. 5).
 
+    A D&C run with ``keep_local_map_poses`` also draws its past poses (the robot at each
+    local map's end) as triangles, as the paper's Fig. 5 draws D&C's vehicle locations.
+
     Args:
         result: the run.
         path: PNG file to write.
@@ -80,11 +83,13 @@ def plot_map(
     blocks = landmark_blocks(estimate.covariance, n)
     trajectory = result.trajectory
     robot = estimate.robot.reshape(1, 3)
+    past_poses = np.asarray(estimate.past_poses, dtype=float).reshape(-1, 3)
     if alignment is not None:
         landmarks = alignment.apply(landmarks) if n else landmarks
         blocks = alignment.apply_covariance(blocks)
         trajectory = alignment.apply_poses(trajectory) if len(trajectory) else trajectory
         robot = alignment.apply_poses(robot)
+        past_poses = alignment.apply_poses(past_poses) if len(past_poses) else past_poses
     widths, heights, angles = landmark_ellipses(blocks)
 
     figure, axes = plt.subplots(figsize=(10, 8), dpi=120)
@@ -100,6 +105,9 @@ def plot_map(
         axes.add_collection(ellipses)
         axes.plot(landmarks[:, 0], landmarks[:, 1], "+", color="black", markersize=3, markeredgewidth=0.6,
                   label=f"landmarks ({n}) with 95 % ellipses")
+    if len(past_poses):
+        axes.plot(past_poses[:, 0], past_poses[:, 1], "^", color="tab:red", markersize=4,
+                  linestyle="none", label=f"robot at local-map boundaries ({len(past_poses)})")
     axes.plot(robot[0, 0], robot[0, 1], marker=(3, 0, np.degrees(robot[0, 2]) - 90), color="tab:red",
               markersize=9, linestyle="none", label="final robot pose")
     axes.set_aspect("equal", adjustable="datalim")

@@ -215,6 +215,27 @@ def test_landmark_ellipses_axes():
     np.testing.assert_array_equal(landmark_blocks(covariance, 2), blocks)
 
 
+def test_map_plot_draws_the_past_poses_of_a_run_that_keeps_them(tmp_path, corridor, config, monkeypatch):
+    import dataclasses
+
+    from dcslam import plots
+
+    result = SlamPipeline(corridor, dataclasses.replace(config, keep_local_map_poses=True), filter="dc").run()
+    past = result.estimate.past_poses
+    assert len(past) >= 2
+    figures = []
+    monkeypatch.setattr(plots.plt, "close", figures.append)  # keep the figure to inspect it
+    plot_map(result, tmp_path / "map.png")
+    handles, labels = figures[0].axes[0].get_legend_handles_labels()
+    drawn = handles[labels.index(f"robot at local-map boundaries ({len(past)})")]
+    np.testing.assert_array_equal(drawn.get_xdata(), past[:, 0])
+    np.testing.assert_array_equal(drawn.get_ydata(), past[:, 1])
+    plain = SlamPipeline(corridor, config, filter="dc").run()
+    assert plain.estimate.past_poses.shape == (0, 3)
+    plot_map(plain, tmp_path / "plain.png")
+    assert not any("local-map boundaries" in label for label in figures[1].axes[0].get_legend_handles_labels()[1])
+
+
 def test_plots_write_pngs(tmp_path, results):
     plot_map(results["dc"], tmp_path / "map.png")
     plot_timing([results["ekf"], results["dc"]], tmp_path / "timing.png", title="corridor")
