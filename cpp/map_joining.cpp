@@ -6,6 +6,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <unordered_map>
 
 #include <Eigen/Cholesky>
@@ -207,6 +208,9 @@ std::int64_t MapJoin::solve_row_cost() const {
   return solve_row_cost(static_cast<std::int64_t>(pairs_.size()));
 }
 
+// An assembled row: its 6 + 2r low-rank factors, copied between column- and row-major blocks.
+std::int64_t MapJoin::assemble_row_cost(std::int64_t r) { return (6 + 2 * r) * kAssembleElementCost / 8; }
+
 // Rows of the solve per unit of work, sized in multiply-adds: with r in the hundreds a fixed
 // row count would cost tens of ms in one step. Depends only on the join's sizes, so the
 // result never depends on the slicing.
@@ -232,15 +236,16 @@ std::int64_t MapJoin::remaining_work() const {
           : bound - GaussianMap::kFeatureDim *
                         static_cast<Index>(pairs_.size() + dropped_ids_.size());
   const auto left = static_cast<std::int64_t>(out_dim - next_out_col_);
-  const auto assembly = [&](std::int64_t r) -> std::int64_t {
-    if (phase_ == Phase::Fill) return 0;
+  // The fill and the assembly, for r pairs.
+  const auto output_work = [&](std::int64_t r) -> std::int64_t {
+    const std::int64_t fill = left * (left + 1) / 2 * fill_element_cost(r);
+    if (phase_ == Phase::Fill) return fill;
     const Index rows = phase_ == Phase::Assemble && next_assemble_row_ >= 0
                            ? result_.dim() - next_assemble_row_
                            : out_dim;
-    return static_cast<std::int64_t>(rows) * (6 + 2 * r) * kAssembleElementCost / 8;
+    return fill + static_cast<std::int64_t>(rows) * assemble_row_cost(r);
   };
-  const auto r_known = static_cast<std::int64_t>(pairs_.size());
-  const std::int64_t work = left * (left + 1) / 2 * fill_element_cost() + assembly(r_known);
+  const std::int64_t work = output_work(static_cast<std::int64_t>(pairs_.size()));
   const Index solve_rows = first_->dim() + second_->dim();
   switch (phase_) {
     case Phase::Associate: {
@@ -249,8 +254,7 @@ std::int64_t MapJoin::remaining_work() const {
       // left joins with r in the hundreds (the snail) to catch up in a few steps of 10 ms;
       // a bound from the map sizes would inflate every budget where r is small.
       const std::int64_t r = associator_ ? associator_->expected_overlap() : 0;
-      return left * (left + 1) / 2 * fill_element_cost(r) + assembly(r) +
-             static_cast<std::int64_t>(solve_rows) * solve_row_cost(r) +
+      return output_work(r) + static_cast<std::int64_t>(solve_rows) * solve_row_cost(r) +
              (r > 0 ? (options_.max_iterations - 1) * relinearise_step_cost(r) : 0) +
              (associator_ ? associator_->remaining_work()
                           : first_->num_features() + second_->num_features());
@@ -480,6 +484,15 @@ std::int64_t MapJoin::relinearise_unit() {
   const Eigen::VectorXd& s0 = gn.prior;
   Eigen::MatrixXd& P_ss = gn.covariance;
   Eigen::VectorXd& s = gn.point;
+  // Pair k's rows of H (-J_R on R1, I on f_i, -Rot on f_j, at this step's point) times X, any
+  // matrix or vector indexed like s: the right-hand side, S = H (P_ss H') and Newton's H P U.
+  const auto H_rows = [&](Index k, const auto& X) {
+    Eigen::Matrix<double, 2, std::decay_t<decltype(X)>::ColsAtCompileTime> rows =
+        X.template middleRows<2>(3 + 2 * k);
+    rows.noalias() -= gn.robot_jacobians[static_cast<std::size_t>(k)] * X.template topRows<3>();
+    rows.noalias() -= gn.rotation * X.template middleRows<2>(second_begin + 2 * k);
+    return rows;
+  };
   if (gn.gathered < ds) {
     // A gathered element is a strided read: about 24 multiply-adds' worth.
     const Index columns = std::max<Index>(1, options_.work_unit / (24 * ds));
@@ -527,16 +540,11 @@ std::int64_t MapJoin::relinearise_unit() {
     if (begin < r) {
       const Index end = std::min(r, begin + pairs_per_unit);
       for (Index k = begin; k < end; ++k) {
-        // Rows of H for pair k: -J_R on R1, I on f_i, -Rot on f_j.
         const Vec2 rotated = rotation * s.segment<2>(second_begin + 2 * k);
         auto& J = gn.robot_jacobians[static_cast<std::size_t>(k)];
         J = point_jacobian(rotated);
         const Vec2 constraint = s.segment<2>(3 + 2 * k) - s.head<2>() - rotated;
-        const Vec2 H_offset = (s0.segment<2>(3 + 2 * k) - s.segment<2>(3 + 2 * k)) -
-                              J * (s0.head<3>() - s.head<3>()) -
-                              rotation * (s0.segment<2>(second_begin + 2 * k) -
-                                          s.segment<2>(second_begin + 2 * k));
-        gn.rhs.segment<2>(2 * k) = -constraint - H_offset;
+        gn.rhs.segment<2>(2 * k) = -constraint - H_rows(k, s0 - s);
         PHt.middleCols<2>(2 * k).noalias() = P_ss.middleCols<2>(3 + 2 * k);
         PHt.middleCols<2>(2 * k).noalias() -= P_ss.leftCols<3>() * J.transpose();
         PHt.middleCols<2>(2 * k).noalias() -=
@@ -550,13 +558,8 @@ std::int64_t MapJoin::relinearise_unit() {
     const Index end = std::min(2 * r, begin + pairs_per_unit);
     std::int64_t work = 0;
     for (Index k = begin - r; k < end - r; ++k) {
-      const Eigen::Matrix<double, 3, 2> robot_rows = PHt.block<3, 2>(0, 2 * k);
-      for (Index l = k; l < r; ++l) {
-        auto block = S.block<2, 2>(2 * l, 2 * k);
-        block = PHt.block<2, 2>(3 + 2 * l, 2 * k);
-        block.noalias() -= gn.robot_jacobians[static_cast<std::size_t>(l)] * robot_rows;
-        block.noalias() -= rotation * PHt.block<2, 2>(second_begin + 2 * l, 2 * k);
-      }
+      const auto column = PHt.middleCols<2>(2 * k);
+      for (Index l = k; l < r; ++l) S.block<2, 2>(2 * l, 2 * k) = H_rows(l, column);
       work += 11 * (r - k);
     }
     gn.next_build = end;
@@ -621,11 +624,7 @@ std::int64_t MapJoin::relinearise_unit() {
     Mat2 K_inverse;
     K_inverse << -PU(kTheta, 0), 1.0 - PU(kTheta, 1), 1.0 - PU(kTheta, 1),
         -h - a.dot(PU.col(1).tail(2 * r));
-    for (Index k = 0; k < r; ++k) {
-      W.middleRows<2>(2 * k) = PU.middleRows<2>(3 + 2 * k);
-      W.middleRows<2>(2 * k).noalias() -= gn.robot_jacobians[static_cast<std::size_t>(k)] * PU.topRows<3>();
-      W.middleRows<2>(2 * k).noalias() -= rotation * PU.middleRows<2>(second_begin + 2 * k);
-    }
+    for (Index k = 0; k < r; ++k) W.middleRows<2>(2 * k) = H_rows(k, PU);
     Eigen::Matrix<double, Eigen::Dynamic, 2> Z = W;
     solve_S(Z);
     Mat2 capacitance = K_inverse;
@@ -918,7 +917,7 @@ std::int64_t MapJoin::assemble_next_rows() {
     next_out_col_ = 0;
     next_fill_row_ = 0;
   }
-  return done * (6 + k) * kAssembleElementCost / 8 + 1;
+  return done * assemble_row_cost(static_cast<std::int64_t>(pairs_.size())) + 1;
 }
 
 // Applies J_2 (block-diagonal rotations: Rot on the (x, y) of the robot, of each feature and

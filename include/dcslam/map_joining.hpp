@@ -193,6 +193,7 @@ class MapJoin {
   void release_inputs();
   static std::int64_t fill_element_cost(std::int64_t r);
   static std::int64_t solve_row_cost(std::int64_t r);
+  static std::int64_t assemble_row_cost(std::int64_t r);
   std::int64_t fill_element_cost() const;
   std::int64_t solve_row_cost() const;
 
