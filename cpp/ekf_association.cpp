@@ -21,6 +21,9 @@ constexpr double kInitialCellSize = 1.0;
 constexpr double kSlackFraction = 0.25;
 // The cell size follows the scan's largest query radius within this factor.
 constexpr double kCellDrift = 4.0;
+// Up to this many features a scan of their positions is cheaper than the hash's cell look-ups
+// (local maps of D&C stay below it).
+constexpr EkfAssociation::Index kLinearScanFeatures = 64;
 
 }  // namespace
 
@@ -85,14 +88,15 @@ double candidate_radius(ObservationModel observation, const Vec3& sensor_offset,
   if (observation == ObservationModel::RangeBearing) {
     // |nu_r| <= c sqrt(S_rr) and the range row of [H_R H_f] moves by at most
     // sigma_position + lever sigma_heading + sigma_feature (one standard deviation each).
-    const double range_std_bound = std::hypot(sigma_position + lever * sigma_heading + sigma_feature,
-                                              std::sqrt(std::max(0.0, R(0, 0))));
+    // Plain sqrt: std::hypot's overflow guard costs more than the rest of this function.
+    const double position_bound = sigma_position + lever * sigma_heading + sigma_feature;
+    const double range_std_bound = std::sqrt(position_bound * position_bound + std::max(0.0, R(0, 0)));
     const double max_range = z(0) + c * range_std_bound;
     // r_j |nu_beta| <= c r_j sqrt(S_bb): the bearing row scaled by r_j has position and
     // feature parts of norm 1 and a heading part of at most r_j + lever.
-    const double bearing_arc_bound =
-        std::hypot(sigma_position + (max_range + lever) * sigma_heading + sigma_feature,
-                   max_range * std::sqrt(std::max(0.0, R(1, 1))));
+    const double arc_position_bound = sigma_position + (max_range + lever) * sigma_heading + sigma_feature;
+    const double bearing_arc_bound = std::sqrt(arc_position_bound * arc_position_bound +
+                                               max_range * max_range * std::max(0.0, R(1, 1)));
     // |g(x_R, z) - f_j| <= |nu_r| + r_j |nu_beta| (radial step, then the arc).
     return c * (range_std_bound + bearing_arc_bound);
   }
@@ -180,7 +184,11 @@ double EkfAssociation::query_radius(const GaussianMap& map, const Vec2& z, const
 
 void EkfAssociation::candidates(const GaussianMap& map, const Vec2& z, const Mat2& R,
                                 std::vector<int>& out) {
-  const double radius = query_radius(map, z, R);
+  candidates_within(map, z, query_radius(map, z, R), out);
+}
+
+void EkfAssociation::candidates_within(const GaussianMap& map, const Vec2& z, double radius,
+                                       std::vector<int>& out) {
   if (!std::isfinite(radius)) {
     // No finite bound (Cartesian model, heading std near 1/sqrt(gate)): every feature.
     out.resize(static_cast<std::size_t>(map.num_features()));
@@ -189,7 +197,17 @@ void EkfAssociation::candidates(const GaussianMap& map, const Vec2& z, const Mat
   }
   const Vec2 center =
       inverse_observe(config_.observation, config_.sensor_offset, map.robot(), z);
-  hash_.query(center, radius + slack(), out);
+  const double reach = radius + slack();
+  if (map.num_features() <= kLinearScanFeatures) {
+    // The hash's own test on the positions it holds, so the answer is the same set.
+    out.clear();
+    const double reach_sq = reach * reach;
+    for (std::size_t k = 0; k < hashed_position_.size(); ++k) {
+      if ((hashed_position_[k] - center).squaredNorm() <= reach_sq) out.push_back(static_cast<int>(k));
+    }
+    return;
+  }
+  hash_.query(center, reach, out);
   std::sort(out.begin(), out.end());  // hash order is arbitrary; keep runs reproducible
 }
 
@@ -219,10 +237,11 @@ void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
   const auto noise = [&R](std::size_t i) -> const Mat2& { return R.size() == 1 ? R[0] : R[i]; };
 
   // Keep the cell about one query radius wide, so a query touches about 3x3 cells.
+  radii_.resize(m);
   double largest_radius = 0.0;
   for (std::size_t i = 0; i < m; ++i) {
-    largest_radius = std::max(
-        largest_radius, query_radius(map, z.row(static_cast<Index>(i)).transpose(), noise(i)));
+    radii_[i] = query_radius(map, z.row(static_cast<Index>(i)).transpose(), noise(i));
+    largest_radius = std::max(largest_radius, radii_[i]);
   }
   if (std::isfinite(largest_radius) && largest_radius > 0.0 &&
       (largest_radius > kCellDrift * hash_.cell_size() ||
@@ -235,7 +254,7 @@ void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
   for (std::size_t i = 0; i < m; ++i) {
     std::vector<int>& compatible = candidates_[i];
     compatible.clear();
-    candidates(map, z.row(static_cast<Index>(i)).transpose(), noise(i), nearby_);
+    candidates_within(map, z.row(static_cast<Index>(i)).transpose(), radii_[i], nearby_);
     for (int feature : nearby_) {
       model_.prepare(feature);
       if (individual_distance_sq(model_, Pairing{static_cast<int>(i), feature}) <= gate_threshold_) {

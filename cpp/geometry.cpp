@@ -9,6 +9,8 @@ namespace dcslam {
 
 double wrap_angle(double angle) {
   constexpr double kPi = 3.14159265358979323846;
+  // Most angles are already wrapped; std::remainder costs a rounding-mode switch.
+  if (angle > -kPi && angle <= kPi) return angle;
   double wrapped = std::remainder(angle, 2.0 * kPi);  // in [-pi, pi]
   if (wrapped <= -kPi) wrapped += 2.0 * kPi;
   return wrapped;

@@ -4,6 +4,7 @@
 #include <string>
 #include <unordered_set>
 
+#include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 
 #include "dcslam/errors.hpp"
@@ -37,15 +38,19 @@ void check_motion(const Vec3& u, const Mat3& Q, const char* function) {
   if (!u.allFinite()) {
     throw InvalidArgument(argument(function, "u") + " contains a non-finite value (NaN or inf)");
   }
-  const std::string q = argument(function, "Q");
-  if (!Q.allFinite()) throw InvalidArgument(q + " contains a non-finite value (NaN or inf)");
-  if (!is_symmetric(Q)) throw InvalidArgument(q + " is not symmetric");
+  // Messages are built only on failure: these checks run on every step of a filter.
+  const auto q = [function] { return argument(function, "Q"); };
+  if (!Q.allFinite()) throw InvalidArgument(q() + " contains a non-finite value (NaN or inf)");
+  if (!is_symmetric(Q)) throw InvalidArgument(q() + " is not symmetric");
   const Mat3 symmetric = 0.5 * (Q + Q.transpose());
+  // Positive definite (the usual case) settles it; otherwise the eigenvalues decide within
+  // the tolerance.
+  if (Eigen::LLT<Mat3>(symmetric).info() == Eigen::Success) return;
   const Vec3 eigenvalues = Eigen::SelfAdjointEigenSolver<Mat3>(symmetric, Eigen::EigenvaluesOnly)
                                .eigenvalues();
   const double scale = eigenvalues.cwiseAbs().maxCoeff();
   if (eigenvalues.minCoeff() < -kSemiDefiniteTolerance * scale) {
-    throw InvalidArgument(q + " is not positive semi-definite (smallest eigenvalue " +
+    throw InvalidArgument(q() + " is not positive semi-definite (smallest eigenvalue " +
                           std::to_string(eigenvalues.minCoeff()) + ")");
   }
 }
@@ -55,44 +60,44 @@ void check_measurements(const MeasurementsRef& z, const std::vector<Mat2>& R,
                         ObservationModel observation, Association association,
                         const char* function) {
   const auto m = static_cast<std::size_t>(z.rows());
-  const std::string z_arg = argument(function, "z");
+  const auto z_arg = [function] { return argument(function, "z"); };
   for (std::size_t i = 0; i < m; ++i) {
     const auto row = z.row(static_cast<Eigen::Index>(i));
     if (!row.allFinite()) {
-      throw InvalidArgument(indexed(z_arg, i) + " contains a non-finite value (NaN or inf)");
+      throw InvalidArgument(indexed(z_arg(), i) + " contains a non-finite value (NaN or inf)");
     }
     if (observation == ObservationModel::RangeBearing && !(row(0) > 0.0)) {
-      throw InvalidArgument(indexed(z_arg, i) + " has a range that is not positive");
+      throw InvalidArgument(indexed(z_arg(), i) + " has a range that is not positive");
     }
   }
 
-  const std::string r_arg = argument(function, "R");
+  const auto r_arg = [function] { return argument(function, "R"); };
   if (R.size() != 1 && R.size() != m) {
-    throw InvalidArgument(r_arg + ": expected 1 or " + std::to_string(m) +
+    throw InvalidArgument(r_arg() + ": expected 1 or " + std::to_string(m) +
                           " matrices of shape (2, 2), got " + std::to_string(R.size()));
   }
   for (std::size_t i = 0; i < R.size(); ++i) {
     const Mat2& Ri = R[i];
-    const std::string name = R.size() == 1 ? r_arg : indexed(r_arg, i);
-    if (!Ri.allFinite()) throw InvalidArgument(name + " contains a non-finite value (NaN or inf)");
-    if (!is_symmetric(Ri)) throw InvalidArgument(name + " is not symmetric");
+    const auto name = [&] { return R.size() == 1 ? r_arg() : indexed(r_arg(), i); };
+    if (!Ri.allFinite()) throw InvalidArgument(name() + " contains a non-finite value (NaN or inf)");
+    if (!is_symmetric(Ri)) throw InvalidArgument(name() + " is not symmetric");
     const double off_diagonal = 0.5 * (Ri(0, 1) + Ri(1, 0));
     if (!(Ri(0, 0) > 0.0 && Ri(0, 0) * Ri(1, 1) - off_diagonal * off_diagonal > 0.0)) {
-      throw InvalidArgument(name + " is not positive definite");
+      throw InvalidArgument(name() + " is not positive definite");
     }
   }
 
-  const std::string ids_arg = argument(function, "landmark_ids");
+  const auto ids_arg = [function] { return argument(function, "landmark_ids"); };
   if (association != Association::Known) {
     if (landmark_ids) {
-      throw InvalidArgument(ids_arg + " is only accepted in association mode 'known' (this filter uses '" +
+      throw InvalidArgument(ids_arg() + " is only accepted in association mode 'known' (this filter uses '" +
                             to_string(association) + "')");
     }
     return;
   }
-  if (!landmark_ids) throw InvalidArgument(ids_arg + " is required in association mode 'known'");
+  if (!landmark_ids) throw InvalidArgument(ids_arg() + " is required in association mode 'known'");
   if (landmark_ids->size() != m) {
-    throw InvalidArgument(ids_arg + ": expected " + std::to_string(m) + " ids (one per row of z), got " +
+    throw InvalidArgument(ids_arg() + ": expected " + std::to_string(m) + " ids (one per row of z), got " +
                           std::to_string(landmark_ids->size()));
   }
   std::unordered_set<std::int64_t> seen;
@@ -100,11 +105,11 @@ void check_measurements(const MeasurementsRef& z, const std::vector<Mat2>& R,
   for (std::size_t i = 0; i < m; ++i) {
     const std::int64_t id = (*landmark_ids)[i];
     if (id < -1) {
-      throw InvalidArgument(indexed(ids_arg, i) + " is " + std::to_string(id) +
+      throw InvalidArgument(indexed(ids_arg(), i) + " is " + std::to_string(id) +
                             " (ids are >= 0, or -1 for a measurement to reject)");
     }
     if (id != -1 && !seen.insert(id).second) {
-      throw InvalidArgument(indexed(ids_arg, i) + ": id " + std::to_string(id) +
+      throw InvalidArgument(indexed(ids_arg(), i) + ": id " + std::to_string(id) +
                             " appears twice in one scan");
     }
   }

@@ -188,21 +188,38 @@ bool Jcbb::extend(int depth, const Pairing& pairing, double& distance_sq, double
   // Appending pairing a to H: with C_Ha = cov(nu_H, nu_a) and X = L^-1 C_Ha, the new factor
   // row is [X', chol(C_aa - X'X)] and the new whitened entry chol(..)^-1 (nu_a - X' w_H).
   const int rows = 2 * depth;
-  auto cross = cross_.topRows(rows);
+  // Hypotheses hold a handful of pairings: plain loops beat Eigen's blocked triangular solve
+  // and products, whose set-up dominates at these sizes.
+  Mat2 schur = model_->covariance(pairing, pairing);
+  Vec2 residual = model_->innovation(pairing);
   for (int t = 0; t < depth; ++t) {
-    cross.middleRows<2>(2 * t) = model_->covariance(hypothesis_[t], pairing);
+    cross_.middleRows<2>(2 * t) = model_->covariance(hypothesis_[t], pairing);
   }
-  const auto lower = factor_.topLeftCorner(rows, rows).triangularView<Eigen::Lower>();
-  lower.solveInPlace(cross);
-  const Mat2 schur = model_->covariance(pairing, pairing) - cross.transpose() * cross;
+  for (int r = 0; r < rows; ++r) {
+    double x0 = cross_(r, 0), x1 = cross_(r, 1);
+    for (int c = 0; c < r; ++c) {
+      const double l = factor_(r, c);
+      x0 -= l * cross_(c, 0);
+      x1 -= l * cross_(c, 1);
+    }
+    const double inverse_pivot = 1.0 / factor_(r, r);
+    x0 *= inverse_pivot;
+    x1 *= inverse_pivot;
+    cross_(r, 0) = x0;
+    cross_(r, 1) = x1;
+    schur(0, 0) -= x0 * x0;
+    schur(0, 1) -= x0 * x1;
+    schur(1, 0) -= x1 * x0;
+    schur(1, 1) -= x1 * x1;
+    residual(0) -= x0 * whitened_(r);
+    residual(1) -= x1 * whitened_(r);
+  }
   Mat2 block;
   if (!cholesky2(schur, block)) return false;
-  const Vec2 residual =
-      model_->innovation(pairing) - cross.transpose() * whitened_.head(rows);
   const Vec2 whitened = forward_solve2(block, residual);
   const double extended = distance_sq + whitened.squaredNorm();
   if (!(extended <= gate_.threshold(2 * (depth + 1)))) return false;
-  factor_.block(rows, 0, 2, rows) = cross.transpose();
+  factor_.block(rows, 0, 2, rows) = cross_.topRows(rows).transpose();
   factor_.block<2, 2>(rows, rows) = block;
   whitened_.segment<2>(rows) = whitened;
   distance_sq = extended;

@@ -96,6 +96,8 @@ class EkfAssociation {
   void clear();
 
  private:
+  // candidates() for a query radius already computed.
+  void candidates_within(const GaussianMap& map, const Vec2& z, double radius, std::vector<int>& out);
   // candidate_radius() for this map's robot and feature uncertainty.
   double query_radius(const GaussianMap& map, const Vec2& z, const Mat2& R) const;
   void track_sigma(const GaussianMap& map, Index feature);
@@ -115,6 +117,7 @@ class EkfAssociation {
   CandidateLists candidates_;
   JcbbLikelihood likelihood_;       // filled per scan when config_.unexplained_density > 0
   std::vector<int> nearby_;
+  std::vector<double> radii_;  // per measurement of the scan: its query radius
 };
 
 }  // namespace dcslam
