@@ -51,6 +51,12 @@ void EkfPairingModel::prepare(int feature) {
                     &p.H_robot, &p.H_feature);
 }
 
+const EkfPairingModel::Prediction* EkfPairingModel::find_prediction(int feature) const {
+  if (feature < 0 || static_cast<std::size_t>(feature) >= slot_of_feature_.size()) return nullptr;
+  const int slot = slot_of_feature_[static_cast<std::size_t>(feature)];
+  return slot < 0 ? nullptr : &predictions_[static_cast<std::size_t>(slot)];
+}
+
 const EkfPairingModel::Prediction& EkfPairingModel::prediction(int feature) const {
   const int slot = slot_of_feature_[static_cast<std::size_t>(feature)];
   if (slot < 0) throw InvalidArgument("EkfPairingModel: feature " + std::to_string(feature) + " not prepared");
@@ -250,28 +256,41 @@ void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
   }
 
   model_.reset(map, config_.observation, config_.sensor_offset, z, R);
-  candidates_.resize(m);
+  // Lists are parked rather than destroyed when a scan is shorter, so they keep their capacity.
+  while (candidates_.size() > m) {
+    spare_lists_.push_back(std::move(candidates_.back()));
+    candidates_.pop_back();
+  }
+  while (candidates_.size() < m) {
+    if (spare_lists_.empty()) {
+      candidates_.emplace_back();
+    } else {
+      candidates_.push_back(std::move(spare_lists_.back()));
+      spare_lists_.pop_back();
+    }
+  }
   for (std::size_t i = 0; i < m; ++i) {
-    std::vector<int>& compatible = candidates_[i];
-    compatible.clear();
+    ranked_.clear();
     candidates_within(map, z.row(static_cast<Index>(i)).transpose(), radii_[i], nearby_);
     for (int feature : nearby_) {
       model_.prepare(feature);
-      if (individual_distance_sq(model_, Pairing{static_cast<int>(i), feature}) <= gate_threshold_) {
-        compatible.push_back(feature);
-      }
+      const double distance_sq = individual_distance_sq(model_, Pairing{static_cast<int>(i), feature});
+      if (distance_sq <= gate_threshold_) ranked_.emplace_back(distance_sq, feature);
     }
+    // Closest first, ties in feature order: the order JCBB tries them in.
+    std::stable_sort(ranked_.begin(), ranked_.end(),
+                     [](const auto& a, const auto& b) { return a.first < b.first; });
+    std::vector<int>& compatible = candidates_[i];
+    compatible.clear();
+    for (const auto& [distance_sq, feature] : ranked_) compatible.push_back(feature);
   }
 
   std::vector<int> feature_of;
   if (config_.association == Association::Jcbb) {
     JcbbResult result;
-    if (config_.unexplained_density > 0.0) {
-      fill_likelihood(z, R);
-      result = jcbb_.solve(candidates_, model_, likelihood_);
-    } else {
-      result = jcbb_.solve(candidates_, model_);
-    }
+    if (config_.unexplained_density > 0.0) fill_likelihood(z, R);
+    result = jcbb_.solve_ranked(candidates_, model_,
+                                config_.unexplained_density > 0.0 ? &likelihood_ : nullptr);
     counters["jcbb_nodes"] += static_cast<double>(result.nodes_expanded);
     counters["jcbb_bound_hits"] += result.bound_hit ? 1.0 : 0.0;
     feature_of = std::move(result.feature_of);

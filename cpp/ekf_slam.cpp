@@ -217,8 +217,16 @@ void EkfSlam::update_paired(const MeasurementsRef& z, const std::vector<Mat2>& R
     const Index offset = GaussianMap::feature_offset(feature);
     Mat23& H_R = H_robot_[static_cast<std::size_t>(a)];
     Mat2& H_f = H_feature_[static_cast<std::size_t>(a)];
-    const Vec2 z_hat =
-        observe(config_.observation, config_.sensor_offset, robot, map_.feature(feature), &H_R, &H_f);
+    const EkfPairingModel::Prediction* predicted =
+        association_ ? association_->model().find_prediction(static_cast<int>(feature)) : nullptr;
+    Vec2 z_hat;
+    if (predicted) {
+      z_hat = predicted->z_hat;
+      H_R = predicted->H_robot;
+      H_f = predicted->H_feature;
+    } else {
+      z_hat = observe(config_.observation, config_.sensor_offset, robot, map_.feature(feature), &H_R, &H_f);
+    }
     nu.segment<2>(2 * a) =
         innovation(config_.observation, z.row(static_cast<Index>(i)).transpose(), z_hat);
     PHt.middleCols<2>(2 * a).noalias() = P.leftCols<3>() * H_R.transpose();

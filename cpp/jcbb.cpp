@@ -53,21 +53,35 @@ Jcbb::Jcbb(const JcbbOptions& options) : options_(options), gate_(options.confid
   if (options.max_nodes < 1) throw InvalidArgument("JcbbOptions.max_nodes must be >= 1");
 }
 
-JcbbResult Jcbb::solve(const CandidateLists& candidates, const PairingModel& model) {
-  return run(candidates, model, nullptr);
-}
+namespace {
 
-JcbbResult Jcbb::solve(const CandidateLists& candidates, const PairingModel& model,
-                       const JcbbLikelihood& likelihood) {
+void check_likelihood(const CandidateLists& candidates, const JcbbLikelihood& likelihood) {
   const std::size_t m = candidates.size();
   if (likelihood.log_unexplained_density.size() != m || likelihood.log_noise_det.size() != m) {
     throw InvalidArgument("JcbbLikelihood: one log density and one log det per measurement");
   }
-  return run(candidates, model, &likelihood);
+}
+
+}  // namespace
+
+JcbbResult Jcbb::solve(const CandidateLists& candidates, const PairingModel& model) {
+  return run(candidates, model, nullptr, false);
+}
+
+JcbbResult Jcbb::solve(const CandidateLists& candidates, const PairingModel& model,
+                       const JcbbLikelihood& likelihood) {
+  check_likelihood(candidates, likelihood);
+  return run(candidates, model, &likelihood, false);
+}
+
+JcbbResult Jcbb::solve_ranked(const CandidateLists& ranked_candidates, const PairingModel& model,
+                              const JcbbLikelihood* likelihood) {
+  if (likelihood) check_likelihood(ranked_candidates, *likelihood);
+  return run(ranked_candidates, model, likelihood, true);
 }
 
 JcbbResult Jcbb::run(const CandidateLists& candidates, const PairingModel& model,
-                     const JcbbLikelihood* likelihood) {
+                     const JcbbLikelihood* likelihood, bool ranked) {
   check_candidates(candidates);
   model_ = &model;
   likelihood_ = likelihood;
@@ -75,9 +89,15 @@ JcbbResult Jcbb::run(const CandidateLists& candidates, const PairingModel& model
   const int m = num_measurements_;
 
   // Trying the individually closest candidate first finds a good hypothesis early, so the
-  // distance bound starts pruning sooner.
-  ordered_candidates_.resize(static_cast<std::size_t>(m));
+  // distance bound starts pruning sooner. The lists only grow: shrinking would free them.
+  if (ordered_candidates_.size() < static_cast<std::size_t>(m)) {
+    ordered_candidates_.resize(static_cast<std::size_t>(m));
+  }
   for (int i = 0; i < m; ++i) {
+    if (ranked) {
+      ordered_candidates_[static_cast<std::size_t>(i)] = candidates[i];
+      continue;
+    }
     ranked_.clear();
     for (int feature : candidates[i]) {
       ranked_.emplace_back(individual_distance_sq(model, Pairing{i, feature}), feature);

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -42,12 +43,16 @@ class EkfPairingModel : public PairingModel {
   Vec2 innovation(const Pairing& pairing) const override;
   Mat2 covariance(const Pairing& a, const Pairing& b) const override;
 
- private:
   struct Prediction {
     Vec2 z_hat;
     Mat23 H_robot;
     Mat2 H_feature;
   };
+  // The prediction of a prepared feature, else nullptr. Valid until the next reset(); the
+  // filter's update reuses them, as the map has not moved since the association.
+  const Prediction* find_prediction(int feature) const;
+
+ private:
   const Prediction& prediction(int feature) const;
   const Mat2& noise(int measurement) const;
 
@@ -94,6 +99,8 @@ class EkfAssociation {
   // and refreshes the bound on feature uncertainty. O(n).
   void map_updated(const GaussianMap& map);
   void clear();
+  // The last scan's pairing model (its prepared predictions).
+  const EkfPairingModel& model() const { return model_; }
 
  private:
   // candidates() for a query radius already computed.
@@ -118,6 +125,8 @@ class EkfAssociation {
   JcbbLikelihood likelihood_;       // filled per scan when config_.unexplained_density > 0
   std::vector<int> nearby_;
   std::vector<double> radii_;  // per measurement of the scan: its query radius
+  std::vector<std::pair<double, int>> ranked_;  // scratch: (individual distance, feature)
+  CandidateLists spare_lists_;                  // candidate lists beyond the current scan
 };
 
 }  // namespace dcslam

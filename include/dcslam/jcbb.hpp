@@ -102,12 +102,17 @@ class Jcbb {
   // exhaustive enumeration) unless the node bound is hit.
   JcbbResult solve(const CandidateLists& candidates, const PairingModel& model,
                    const JcbbLikelihood& likelihood);
+  // solve() (likelihood criterion when `likelihood` is given) for candidate lists that are
+  // already in order of increasing individual distance, as a caller that gated them has them:
+  // the same result without computing every individual distance a second time.
+  JcbbResult solve_ranked(const CandidateLists& ranked_candidates, const PairingModel& model,
+                          const JcbbLikelihood* likelihood = nullptr);
 
  private:
   // Both criteria maximise a score summed over the pairings, then minimise D^2: one per
   // pairing for "most pairings", the gain for the likelihood criterion.
   JcbbResult run(const CandidateLists& candidates, const PairingModel& model,
-                 const JcbbLikelihood* likelihood);
+                 const JcbbLikelihood* likelihood, bool ranked);
   void search(int measurement, int depth, double distance_sq, double score);
   // Tests adding `pairing` to the first `depth` pairings of the current hypothesis; on
   // success writes its block row of the factor, returns the new D^2 in `distance_sq` and
