@@ -545,10 +545,13 @@ std::int64_t MapJoin::relinearise_unit() {
         J = point_jacobian(rotated);
         const Vec2 constraint = s.segment<2>(3 + 2 * k) - s.head<2>() - rotated;
         gn.rhs.segment<2>(2 * k) = -constraint - H_rows(k, s0 - s);
-        PHt.middleCols<2>(2 * k).noalias() = P_ss.middleCols<2>(3 + 2 * k);
-        PHt.middleCols<2>(2 * k).noalias() -= P_ss.leftCols<3>() * J.transpose();
-        PHt.middleCols<2>(2 * k).noalias() -=
-            P_ss.middleCols<2>(second_begin + 2 * k) * rotation.transpose();
+        // P_ss is block diagonal (m1's rows, then m2's): only the non-zero blocks are read.
+        auto columns = PHt.middleCols<2>(2 * k);
+        auto first = columns.topRows(second_begin);
+        first.noalias() = P_ss.block(0, 3 + 2 * k, second_begin, 2);
+        first.noalias() -= P_ss.topLeftCorner(second_begin, 3) * J.transpose();
+        columns.bottomRows(2 * r).noalias() =
+            -P_ss.block(second_begin, second_begin + 2 * k, 2 * r, 2) * rotation.transpose();
       }
       gn.next_build = end;
       return std::max<std::int64_t>(1, static_cast<std::int64_t>(5 * ds * (end - begin)));
@@ -620,7 +623,8 @@ std::int64_t MapJoin::relinearise_unit() {
     }
     Eigen::Matrix<double, Eigen::Dynamic, 2> PU(ds, 2), W(2 * r, 2);
     PU.col(0) = P_ss.col(kTheta);
-    PU.col(1).noalias() = P_ss.rightCols(2 * r) * a;
+    PU.col(1).head(second_begin).setZero();  // a lives on the f_j, m2's block of P_ss
+    PU.col(1).tail(2 * r).noalias() = P_ss.bottomRightCorner(2 * r, 2 * r) * a;
     Mat2 K_inverse;
     K_inverse << -PU(kTheta, 0), 1.0 - PU(kTheta, 1), 1.0 - PU(kTheta, 1),
         -h - a.dot(PU.col(1).tail(2 * r));

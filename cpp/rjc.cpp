@@ -125,6 +125,10 @@ std::int64_t SequentialAcceptance::step() {
   return work;
 }
 
+double SequentialAcceptance::joint_distance_sq() const {
+  return whitened_.head(2 * static_cast<Eigen::Index>(kept_.size())).squaredNorm();
+}
+
 // Each pairing left costs its covariances with the kept ones and a triangular solve of their
 // factor: about sum over m of (16 m + m^2 / 2) units.
 std::int64_t SequentialAcceptance::remaining_work() const {
@@ -314,8 +318,18 @@ std::int64_t RjcSearch::advance(std::int64_t budget) {
         spent += sequential_->step();
         if (sequential_->done()) {
           result_.dropped = sequential_->removed();
-          joint_.emplace(result_.feature_of, model_, options_.confidence, options_.work_unit);
-          stage_ = Stage::Joint;
+          const int kept = best_pairings_ - result_.dropped;
+          const double distance_sq = sequential_->joint_distance_sq();
+          if (kept == 0 || distance_sq <= chi2_quantile(2 * kept, options_.confidence)) {
+            // Usually the kept pairings pass the joint test as they are: the sequential
+            // factor already holds their D^2, and S need not be stacked and factored again.
+            result_.joint_distance_sq = distance_sq;
+            result_.pairings = kept;
+            stage_ = Stage::Done;
+          } else {
+            joint_.emplace(result_.feature_of, model_, options_.confidence, options_.work_unit);
+            stage_ = Stage::Joint;
+          }
         }
         break;
       case Stage::Joint:
@@ -524,6 +538,7 @@ std::int64_t RjcSearch::remaining_work() const {
       return static_cast<std::int64_t>(std::ceil(tries_left)) * try_cost() + verification;
     }
     case Stage::Sequential:
+      // With the joint stage, which only runs should the kept pairings fail the test.
       return sequential_->remaining_work() + k * k * k / 3;
     case Stage::Joint:
       return joint_->remaining_work();

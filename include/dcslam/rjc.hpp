@@ -59,9 +59,10 @@ struct RjcResult {
 //
 // The conditional gate tests each pairing against H only, not against the other added
 // pairings, so with verify on the best hypothesis is re-tested by accept_sequentially() (each
-// pairing against all those kept before it, in the order the try accepted them) and then made
-// jointly compatible by enforce_joint_compatibility(). That costs O(k^3) for k pairings, no
-// more than the O(n^2 k) join update that consumes them.
+// pairing against all those kept before it, in the order the try accepted them). The factor
+// it grows holds the kept pairings' joint D^2 (chain rule); only if that fails the joint test
+// is the hypothesis made jointly compatible by enforce_joint_compatibility(). That costs
+// O(k^3) for k pairings, no more than the O(n^2 k) join update that consumes them.
 RjcResult rjc(const CandidateLists& candidates, const PairingModel& model,
               const RjcOptions& options = RjcOptions());
 
@@ -89,6 +90,9 @@ class SequentialAcceptance {
   bool done() const { return next_ == static_cast<Eigen::Index>(order_.size()); }
   std::int64_t remaining_work() const;
   int removed() const { return removed_; }
+  // D^2 of the pairings kept so far, in the order kept: the sum of their distances each
+  // conditioned on those before it (the chain rule), so no joint factor is needed for it.
+  double joint_distance_sq() const;
 
  private:
   const std::vector<Pairing>& order_;
