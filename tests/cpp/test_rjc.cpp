@@ -295,8 +295,15 @@ TEST(Rjc, SequentialAcceptanceKeepsThePairingsCompatibleWithAllEarlierOnes) {
       ++expected_removed;
     }
   }
+  std::vector<int> sequential = feature_of;
+  SequentialAcceptance acceptance(order, 4, sequential, problem.model, gate);
+  while (!acceptance.done()) acceptance.step();
   EXPECT_EQ(accept_sequentially(order, 4, feature_of, problem.model, gate), expected_removed);
   EXPECT_EQ(feature_of, expected);
+  EXPECT_EQ(sequential, expected);
+  // Its factor holds the joint D^2 of what it kept (what RJC's joint test reads from it).
+  EXPECT_NEAR(acceptance.joint_distance_sq(), joint_distance_sq(expected, problem.model),
+              1e-9 * joint_distance_sq(expected, problem.model));
   // Both wrong pairings go, every true one stays.
   EXPECT_EQ(expected_removed, 2);
   EXPECT_EQ(feature_of[spurious], kStar);
