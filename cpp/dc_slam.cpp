@@ -1,6 +1,7 @@
 #include "dcslam/dc_slam.hpp"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -113,6 +114,11 @@ JoinOptions DCSlam::join_options(int index, std::int64_t first_robot_id) const {
   return options;
 }
 
+void DCSlam::forget_estimate_aliases() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!estimate_aliases_.empty()) estimate_aliases_.clear();
+}
+
 void DCSlam::begin_step() {
   stats_.steps.emplace_back();
   ++steps_;
@@ -131,6 +137,7 @@ void DCSlam::end_step(double seconds) {
 void DCSlam::predict(const Vec3& u, const Mat3& Q) {
   const auto start = Clock::now();
   local_->predict(u, Q);  // validates first: a bad call changes nothing
+  forget_estimate_aliases();
   ++predictions_;
   begin_step();
   end_step(seconds_since(start));
@@ -140,6 +147,7 @@ std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::ve
                                          const std::vector<std::int64_t>* landmark_ids) {
   const auto start = Clock::now();
   std::vector<std::int64_t> ids = local_->update(z, R, landmark_ids);
+  forget_estimate_aliases();
   if (stats_.steps.empty()) begin_step();  // measurements at the first pose, before any motion
   const StepStats& local_step = local_->stats().steps.back();
   StepStats& step = stats_.steps.back();
@@ -362,7 +370,18 @@ void DCSlam::finish_joins() {
   }
 }
 
-DCSlam::NodeMap DCSlam::materialize(const std::shared_ptr<Node>& node) const {
+namespace {
+
+void record_merges(const MapJoin& join, std::unordered_map<std::int64_t, std::int64_t>& aliases) {
+  for (const auto& [from, to] : join.merged_ids()) {
+    if (from != to) aliases[from] = to;
+  }
+  for (std::int64_t id : join.dropped_ids()) aliases[id] = -1;
+}
+
+}  // namespace
+
+DCSlam::NodeMap DCSlam::materialize(const std::shared_ptr<Node>& node, IdAliases& aliases) const {
   std::shared_ptr<Node> left, right;
   int index = 0;
   {
@@ -373,10 +392,11 @@ DCSlam::NodeMap DCSlam::materialize(const std::shared_ptr<Node>& node) const {
     index = node->task->index;
   }
   // Same inputs and options as the real join: the same result, computed on the side.
-  NodeMap first = materialize(left);
-  NodeMap second = materialize(right);
+  NodeMap first = materialize(left, aliases);
+  NodeMap second = materialize(right, aliases);
   const std::unique_ptr<MapJoin> join = make_join(first, second, *left, *right, index);
   join->finish();
+  record_merges(*join, aliases);
   return NodeMap{std::make_shared<const GaussianMap>(join->take_result()),
                  joined_tentative(first.tentative, second.tentative, *join, left->first_leaf,
                                   right->first_leaf + right->leaves - 1)};
@@ -392,12 +412,18 @@ Estimate DCSlam::estimate() const {
   // Join everything on the stack, top first, as Algorithm 2 does at the end of the run.
   // Tentative features all stay, as in the EKF's estimate: the maps after them may not have
   // had their chance to confirm them yet (and resolve() still points at them).
+  IdAliases aliases;
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     const int index = -1 - static_cast<int>(it - stack.rbegin());
-    NodeMap first = materialize(*it);
+    NodeMap first = materialize(*it, aliases);
     MapJoin join(first.map, std::move(joined), join_options(index, (*it)->robot_id));
     join.finish();  // releases its inputs: at most the inputs and the result are alive
+    record_merges(join, aliases);
     joined = std::make_shared<GaussianMap>(join.take_result());
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    estimate_aliases_ = std::move(aliases);
   }
   // Means and ids first: release_covariance() moves P out without a copy and empties the map.
   Estimate estimate = to_estimate(*joined, Eigen::MatrixXd());
@@ -424,13 +450,16 @@ std::vector<std::int64_t> DCSlam::resolve(const std::vector<std::int64_t>& ids) 
   std::lock_guard<std::mutex> lock(mutex_);
   std::vector<std::int64_t> resolved;
   resolved.reserve(ids.size());
-  for (std::int64_t id : resolved_local) {
-    for (auto it = merged_into_.find(id); it != merged_into_.end(); it = merged_into_.find(id)) {
-      id = it->second;
-    }
-    resolved.push_back(id);
-  }
+  for (std::int64_t id : resolved_local) resolved.push_back(resolve_one(id));
   return resolved;
+}
+
+std::int64_t DCSlam::resolve_one(std::int64_t id) const {
+  // The real joins' merges first; the estimate's joins take the maps they left.
+  for (const IdAliases* aliases : std::array<const IdAliases*, 2>{&merged_into_, &estimate_aliases_}) {
+    for (auto it = aliases->find(id); it != aliases->end(); it = aliases->find(id)) id = it->second;
+  }
+  return id;
 }
 
 const RunStats& DCSlam::stats() const {

@@ -118,11 +118,16 @@ class DCSlam : public SlamFilter {
   // The join of two adjacent nodes, with the tentative features whose last chance it is.
   std::unique_ptr<MapJoin> make_join(const NodeMap& first, const NodeMap& second,
                                      const Node& left, const Node& right, int index) const;
-  // The map of `node`, computing pending joins on copies (never touching the real tasks).
-  NodeMap materialize(const std::shared_ptr<Node>& node) const;
+  using IdAliases = std::unordered_map<std::int64_t, std::int64_t>;  // merged id -> its feature, or -1
+  // The map of `node`, computing pending joins on copies (never touching the real tasks); the
+  // merges those joins make are added to `aliases`.
+  NodeMap materialize(const std::shared_ptr<Node>& node, IdAliases& aliases) const;
+  // Follows merged_into_, then the last estimate()'s aliases while they are current.
+  std::int64_t resolve_one(std::int64_t id) const;
   Vec3 node_robot(const Node& node) const;
   void begin_step();
   void end_step(double seconds);
+  void forget_estimate_aliases();
 
   SlamConfig config_;
   std::unique_ptr<EkfSlam> local_;
@@ -138,7 +143,10 @@ class DCSlam : public SlamFilter {
   std::vector<std::shared_ptr<Node>> stack_;
   std::deque<std::shared_ptr<JoinTask>> queue_;
   std::vector<JoinEvent> events_;
-  std::unordered_map<std::int64_t, std::int64_t> merged_into_;
+  IdAliases merged_into_;
+  // The merges of the joins the last estimate() made on copies: resolve() follows them until
+  // the next predict() or update(), so that ids resolve to that estimate's landmarks.
+  mutable IdAliases estimate_aliases_;
   bool stopping_ = false;
   bool worker_busy_ = false;
   std::thread worker_;

@@ -73,6 +73,7 @@ class SlamFilter {
   virtual Vec3 pose() const = 0;
 
   // Maps ids ever returned by update() to the id of the feature holding them now. -1 stays -1.
+  // DCSlam: right after estimate() (until the next predict or update), to that estimate's.
   virtual std::vector<std::int64_t> resolve(const std::vector<std::int64_t>& ids) const = 0;
 
   virtual const RunStats& stats() const = 0;

@@ -157,8 +157,9 @@ class SlamFilter:
 
         -1 stays -1; the id of a feature removed as spurious (a tentative feature, see
         :class:`EkfSlam`) becomes -1. For :class:`DCSlam`, "now" means after the joins the
-        run has done: :meth:`estimate` also joins the whole stack on copies and may merge
-        features that resolve() still reports apart.
+        run has done; right after :meth:`estimate` (until the next :meth:`predict` or
+        :meth:`update`) it also follows the merges of the joins that estimate() made on copies
+        of the stack, so that every id resolves to a landmark of that estimate (or -1).
         """
         return self._core.resolve(ids)
 

@@ -1,0 +1,731 @@
+"""Victoria Park: each filter's map against the batch least-squares optimum of its own
+data associations.
+
+The EKF and D&C maps of Victoria Park (both with unknown data association) differ by about
+1 m at the park's far end. This tool asks which of the two is off. For each filter it takes
+the filter's own associations (``PipelineResult.measurement_ids``) and solves the full SLAM
+problem they define by Gauss-Newton: every pose ``x_1..x_N`` and every associated landmark
+are variables (``x_0`` is the origin, fixed), with
+
+- odometry residuals ``Q_k^{-1/2} (⊖x_{k-1} ⊕ x_k - u_k)`` (angle wrapped), the same
+  model as the filters' ``predict(u_k, Q_k)``: ``x_k = x_{k-1} ⊕ u`` with ``u ~ N(u_k, Q_k)``;
+- observation residuals ``R^{-1/2} (z - h(x_k, l_j))`` (bearing wrapped), ``h`` being
+  :func:`dcslam.geometry.observe` with the dataset's sensor offset; step ``k``'s ``z`` is
+  taken at the pose right after step ``k``'s predict (``trajectory[k]`` in the filter's
+  own estimate).
+
+The batch optimum is what a filter would give if its linearisations were exact: a filter's
+map far from its own optimum is off for the filter's reasons (linearisation, D&C's joins),
+while a difference between the two optima is a difference of associations. A third
+reference, the *consensus* optimum, uses only the measurements both filters associate with
+the same landmark (landmarks paired when each holds the majority of the other's
+measurements), to tell which filter's own associations move its optimum away. It is a
+weak arbiter: dropping the disputed measurements also drops constraints, so its optimum
+depends on where the disputes lie (on Victoria Park it sits near the EKF's optimum for the
+whole run but nearer D&C's for the first 6195 steps).
+
+The tool prints (1) for each filter how far its map lies from its own optimum (metres, and
+in the filter's own landmark covariance), (2) the shares of landmarks within 1 m and 2 m
+between maps and optima (:func:`dcslam.pipeline.map_agreement`, no ids), (3) distances
+between the same landmark in two sets (paired by shared measurements), each near the start
+and beyond (``--near``, 150 m).
+
+Usage:
+    .venv/bin/python tools/vp_batch_reference.py [--seed S] [--max-steps N] [--json OUT]
+
+This is an analysis tool, not a test of the project's map-agreement target: it reports
+numbers and asserts nothing. Only numpy/scipy are used (no GTSAM); Jacobians are the
+analytic ones of :mod:`dcslam.geometry`, checked against central differences by
+:func:`check_jacobians` (and the tests in ``tests/python/test_vp_batch_reference.py``).
+"""
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+import scipy.sparse
+import scipy.sparse.linalg
+
+from dcslam import geometry
+
+MODEL = "range_bearing"
+
+
+# ---------------------------------------------------------------------------------------
+# Residuals and their Jacobians
+# ---------------------------------------------------------------------------------------
+
+def odometry_residual(previous, current, u, jacobians: bool = False):
+    """Unwhitened ``⊖previous ⊕ current - u`` with the angle wrapped.
+
+    With ``jacobians=True`` also returns d/d previous (3x3) and d/d current (3x3): the chain
+    rule through :func:`dcslam.geometry.invert` and :func:`dcslam.geometry.compose`.
+    """
+    inverse, J_inverse = geometry.invert(previous, jacobians=True)
+    relative, J_a, J_b = geometry.compose(inverse, current, jacobians=True)
+    error = np.asarray(relative, dtype=float) - np.asarray(u, dtype=float)
+    error[2] = geometry.wrap_angle(error[2])
+    if not jacobians:
+        return error
+    return error, J_a @ J_inverse, J_b
+
+
+def observation_residual(sensor_offset, robot, landmark, z, jacobians: bool = False):
+    """Unwhitened ``z - h(robot, landmark)`` with the bearing wrapped.
+
+    With ``jacobians=True`` also returns d/d robot (2x3) and d/d landmark (2x2) of the
+    residual (the negated Jacobians of :func:`dcslam.geometry.observe`).
+    """
+    z_hat, H_robot, H_landmark = geometry.observe(MODEL, sensor_offset, robot, landmark, jacobians=True)
+    error = geometry.innovation(MODEL, z, z_hat)
+    if not jacobians:
+        return error
+    return error, -np.asarray(H_robot), -np.asarray(H_landmark)
+
+
+def _numeric_jacobian(function, point, index, eps):
+    """Central differences of ``function(*point)`` with respect to argument ``index``;
+    angle-like outputs are differenced with wrapping so that a wrap does not show up."""
+    base = [np.array(p, dtype=float) for p in point]
+    columns = []
+    for i in range(len(base[index])):
+        plus = [p.copy() for p in base]
+        minus = [p.copy() for p in base]
+        plus[index][i] += eps
+        minus[index][i] -= eps
+        difference = np.asarray(function(*plus), float) - np.asarray(function(*minus), float)
+        difference = np.array([geometry.wrap_angle(d) if abs(d) > np.pi else d for d in difference])
+        columns.append(difference / (2 * eps))
+    return np.column_stack(columns)
+
+
+def check_jacobians(sensor_offset=(3.78, 0.5, 0.0), trials: int = 20, seed: int = 0, eps: float = 1e-6) -> float:
+    """Largest absolute difference between the analytic residual Jacobians and central
+    differences, over ``trials`` random odometry and observation factors."""
+    rng = np.random.default_rng(seed)
+    worst = 0.0
+    for _ in range(trials):
+        previous = np.array([*rng.uniform(-50, 50, 2), rng.uniform(-np.pi, np.pi)])
+        current = np.array([*rng.uniform(-50, 50, 2), rng.uniform(-np.pi, np.pi)])
+        u = np.array([*rng.uniform(-2, 2, 2), rng.uniform(-0.3, 0.3)])
+        _, J_previous, J_current = odometry_residual(previous, current, u, jacobians=True)
+        for index, analytic in ((0, J_previous), (1, J_current)):
+            numeric = _numeric_jacobian(lambda a, b: odometry_residual(a, b, u), (previous, current), index, eps)
+            worst = max(worst, float(np.max(np.abs(numeric - analytic))))
+        robot = np.array([*rng.uniform(-50, 50, 2), rng.uniform(-np.pi, np.pi)])
+        landmark = robot[:2] + rng.uniform(5, 25) * np.array([np.cos(a := rng.uniform(-np.pi, np.pi)), np.sin(a)])
+        z = np.array([rng.uniform(3, 30), rng.uniform(-np.pi, np.pi)])
+        _, J_robot, J_landmark = observation_residual(sensor_offset, robot, landmark, z, jacobians=True)
+        for index, analytic in ((0, J_robot), (1, J_landmark)):
+            numeric = _numeric_jacobian(lambda r, l: observation_residual(sensor_offset, r, l, z),
+                                        (robot, landmark), index, eps)
+            worst = max(worst, float(np.max(np.abs(numeric - analytic))))
+    return worst
+
+
+def _whitener(covariance, what: str) -> np.ndarray:
+    """W with W' W = covariance^{-1} (inverse of the lower Cholesky factor)."""
+    covariance = np.asarray(covariance, dtype=float)
+    try:
+        lower = np.linalg.cholesky(0.5 * (covariance + covariance.T))
+    except np.linalg.LinAlgError as error:
+        raise ValueError(f"batch_optimum: {what} is not positive definite") from error
+    return np.linalg.inv(lower)
+
+
+# ---------------------------------------------------------------------------------------
+# The full SLAM problem
+# ---------------------------------------------------------------------------------------
+
+@dataclasses.dataclass
+class SlamProblem:
+    """Factors of the full SLAM problem defined by one set of associations.
+
+    Poses are numbered 0..N (pose k+1 is the pose of step k's measurements; pose 0 is the
+    origin). ``pose_column[k]`` is the first column of pose k in the state vector, -1 for a
+    fixed pose (pose 0, and poses reached from a fixed pose by an exactly known motion,
+    ``Q = 0``, such as Victoria Park's first step). Landmarks follow the poses.
+    """
+
+    sensor_offset: np.ndarray
+    fixed_poses: Dict[int, np.ndarray]
+    pose_column: np.ndarray                # (N+1,)
+    landmark_ids: np.ndarray               # (L,) in column order
+    landmark_column: np.ndarray            # (L,)
+    odometry_pose: np.ndarray              # (F_o,) pose k of factor (previous is k-1)
+    odometry_u: np.ndarray                 # (F_o, 3)
+    odometry_whitener: np.ndarray          # (F_o, 3, 3)
+    observation_pose: np.ndarray           # (F_z,)
+    observation_landmark: np.ndarray       # (F_z,) index into landmark_ids
+    observation_z: np.ndarray              # (F_z, 2)
+    observation_whitener: np.ndarray       # (F_z, 2, 2)
+    dimension: int
+    dropped_measurements: int              # id >= 0 but not among the given landmarks
+
+    @property
+    def residual_count(self) -> int:
+        return 3 * len(self.odometry_pose) + 2 * len(self.observation_pose)
+
+    @property
+    def degrees_of_freedom(self) -> int:
+        return self.residual_count - self.dimension
+
+
+def build_problem(steps: Sequence, measurement_ids: Sequence, sensor_offset, landmark_ids) -> SlamProblem:
+    """The factors of ``steps`` with the associations ``measurement_ids`` (per step, (m,)
+    ids; < 0 or not in ``landmark_ids``: the measurement is left out)."""
+    if len(measurement_ids) != len(steps):
+        raise ValueError(f"build_problem: {len(measurement_ids)} id arrays for {len(steps)} steps")
+    known = {int(i) for i in landmark_ids}
+    count = len(steps)
+    pose_column = np.full(count + 1, -1, dtype=np.int64)
+    fixed_poses = {0: np.zeros(3)}
+    column = 0
+    odometry_pose, odometry_u, odometry_whitener = [], [], []
+    for k, step in enumerate(steps):
+        pose = k + 1
+        Q = np.asarray(step.Q, dtype=float)
+        if (k in fixed_poses) and not np.any(Q):
+            fixed_poses[pose] = geometry.compose(fixed_poses[k], step.u)
+            continue
+        pose_column[pose] = column
+        column += 3
+        odometry_pose.append(pose)
+        odometry_u.append(np.asarray(step.u, dtype=float))
+        odometry_whitener.append(_whitener(Q, f"Q of step {k}"))
+    used = sorted({int(i) for ids in measurement_ids for i in np.asarray(ids) if int(i) >= 0 and int(i) in known})
+    slot = {landmark: n for n, landmark in enumerate(used)}
+    landmark_column = column + 2 * np.arange(len(used), dtype=np.int64)
+    column += 2 * len(used)
+    observation_pose, observation_landmark, observation_z, observation_whitener = [], [], [], []
+    dropped = 0
+    for k, (step, ids) in enumerate(zip(steps, measurement_ids)):
+        ids = np.asarray(ids)
+        if len(ids) != len(step.z):
+            raise ValueError(f"build_problem: step {k} has {len(step.z)} measurements and {len(ids)} ids")
+        for z, R, landmark in zip(np.asarray(step.z), np.asarray(step.R), ids):
+            landmark = int(landmark)
+            if landmark < 0:
+                continue
+            if landmark not in slot:
+                dropped += 1
+                continue
+            observation_pose.append(k + 1)
+            observation_landmark.append(slot[landmark])
+            observation_z.append(np.asarray(z, dtype=float))
+            observation_whitener.append(_whitener(R, f"R of a measurement of step {k}"))
+    return SlamProblem(
+        sensor_offset=np.asarray(sensor_offset, dtype=float),
+        fixed_poses=fixed_poses,
+        pose_column=pose_column,
+        landmark_ids=np.array(used, dtype=np.int64),
+        landmark_column=landmark_column,
+        odometry_pose=np.array(odometry_pose, dtype=np.int64),
+        odometry_u=np.array(odometry_u).reshape(-1, 3),
+        odometry_whitener=np.array(odometry_whitener).reshape(-1, 3, 3),
+        observation_pose=np.array(observation_pose, dtype=np.int64),
+        observation_landmark=np.array(observation_landmark, dtype=np.int64),
+        observation_z=np.array(observation_z).reshape(-1, 2),
+        observation_whitener=np.array(observation_whitener).reshape(-1, 2, 2),
+        dimension=column,
+        dropped_measurements=dropped,
+    )
+
+
+def _pose(problem: SlamProblem, state: np.ndarray, k: int) -> np.ndarray:
+    column = problem.pose_column[k]
+    return problem.fixed_poses[k] if column < 0 else state[column:column + 3]
+
+
+def linearize(problem: SlamProblem, state: np.ndarray, jacobian: bool = True):
+    """Whitened residuals (and their sparse Jacobian, CSR) at ``state``."""
+    residuals = np.empty(problem.residual_count)
+    rows: List[np.ndarray] = []
+    cols: List[np.ndarray] = []
+    vals: List[np.ndarray] = []
+    row = 0
+    for pose, u, W in zip(problem.odometry_pose, problem.odometry_u, problem.odometry_whitener):
+        previous, current = _pose(problem, state, pose - 1), _pose(problem, state, pose)
+        if jacobian:
+            error, J_previous, J_current = odometry_residual(previous, current, u, jacobians=True)
+            for k, J in ((pose - 1, J_previous), (pose, J_current)):
+                column = problem.pose_column[k]
+                if column >= 0:
+                    rows.append(np.repeat(np.arange(row, row + 3), 3))
+                    cols.append(np.tile(np.arange(column, column + 3), 3))
+                    vals.append((W @ J).ravel())
+        else:
+            error = odometry_residual(previous, current, u)
+        residuals[row:row + 3] = W @ error
+        row += 3
+    for pose, landmark, z, W in zip(problem.observation_pose, problem.observation_landmark,
+                                    problem.observation_z, problem.observation_whitener):
+        robot = _pose(problem, state, pose)
+        landmark_column = problem.landmark_column[landmark]
+        position = state[landmark_column:landmark_column + 2]
+        if jacobian:
+            error, J_robot, J_landmark = observation_residual(problem.sensor_offset, robot, position, z,
+                                                              jacobians=True)
+            column = problem.pose_column[pose]
+            if column >= 0:
+                rows.append(np.repeat(np.arange(row, row + 2), 3))
+                cols.append(np.tile(np.arange(column, column + 3), 2))
+                vals.append((W @ J_robot).ravel())
+            rows.append(np.repeat(np.arange(row, row + 2), 2))
+            cols.append(np.tile(np.arange(landmark_column, landmark_column + 2), 2))
+            vals.append((W @ J_landmark).ravel())
+        else:
+            error = observation_residual(problem.sensor_offset, robot, position, z)
+        residuals[row:row + 2] = W @ error
+        row += 2
+    if not jacobian:
+        return residuals
+    J = scipy.sparse.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(problem.residual_count, problem.dimension))
+    return residuals, J
+
+
+def initial_state(problem: SlamProblem, initial_poses, initial_landmarks: Dict[int, np.ndarray]) -> np.ndarray:
+    """State vector from (N, 3) poses (``initial_poses[k]`` = pose k+1) and landmark
+    positions by id."""
+    initial_poses = np.asarray(initial_poses, dtype=float).reshape(-1, 3)
+    if len(initial_poses) != len(problem.pose_column) - 1:
+        raise ValueError(f"batch_optimum: {len(initial_poses)} initial poses for "
+                         f"{len(problem.pose_column) - 1} steps")
+    state = np.empty(problem.dimension)
+    for k in range(1, len(problem.pose_column)):
+        column = problem.pose_column[k]
+        if column >= 0:
+            state[column:column + 3] = initial_poses[k - 1]
+    for landmark, column in zip(problem.landmark_ids, problem.landmark_column):
+        state[column:column + 2] = np.asarray(initial_landmarks[int(landmark)], dtype=float)
+    return state
+
+
+def _retract(problem: SlamProblem, state: np.ndarray, step: np.ndarray) -> np.ndarray:
+    updated = state + step
+    angles = problem.pose_column[problem.pose_column >= 0] + 2
+    updated[angles] = np.arctan2(np.sin(updated[angles]), np.cos(updated[angles]))
+    return updated
+
+
+@dataclasses.dataclass
+class BatchResult:
+    """Gauss-Newton's answer.
+
+    Attributes:
+        poses: (N, 3) pose k+1 (the pose of step k's measurements) for k = 0..N-1.
+        landmarks: positions by id (the landmarks the associations use).
+        iterations: Gauss-Newton steps taken; converged: the last step's max |dx| fell
+            below the tolerance.
+        chi2_initial, chi2: sum of squared whitened residuals at the start and the end.
+        degrees_of_freedom: residuals - variables.
+        gradient_norm: max |J' r| at the end (0 at an exact optimum).
+        halvings: step halvings the safeguard needed (0: plain Gauss-Newton throughout).
+        history: chi2 after each iteration.
+        seconds: wall time of the solve.
+    """
+
+    poses: np.ndarray
+    landmarks: Dict[int, np.ndarray]
+    iterations: int
+    converged: bool
+    chi2_initial: float
+    chi2: float
+    degrees_of_freedom: int
+    residual_count: int
+    dimension: int
+    gradient_norm: float
+    last_step: float
+    halvings: int
+    history: List[float]
+    dropped_measurements: int
+    seconds: float
+
+    @property
+    def chi2_per_dof(self) -> float:
+        return self.chi2 / self.degrees_of_freedom if self.degrees_of_freedom > 0 else float("nan")
+
+
+def _solve_normal_equations(J, residuals):
+    H = (J.T @ J).tocsc()
+    gradient = J.T @ residuals
+    factor = scipy.sparse.linalg.splu(H, permc_spec="MMD_AT_PLUS_A")
+    return factor.solve(-gradient), gradient
+
+
+def batch_optimum(steps: Sequence, measurement_ids: Sequence, sensor_offset, initial_poses,
+                  initial_landmarks: Dict[int, np.ndarray], max_iterations: int = 50,
+                  tolerance: float = 1e-6, verbose: bool = False) -> BatchResult:
+    """Gauss-Newton on the full SLAM problem of ``steps`` with the associations
+    ``measurement_ids`` (see the module docstring for the model).
+
+    Args:
+        steps: the dataset's steps (``u, Q, z, R``).
+        measurement_ids: per step, (m,) landmark ids (< 0: not used).
+        sensor_offset: the laser's pose on the robot.
+        initial_poses: (N, 3), ``initial_poses[k]`` the pose of step k's measurements (a
+            filter's ``trajectory``).
+        initial_landmarks: id -> (2,) starting positions; measurements whose id is missing
+            here are left out (counted in ``dropped_measurements``).
+        max_iterations: Gauss-Newton steps at most.
+        tolerance: converged when the step's largest component is below this.
+
+    Each step solves the sparse normal equations ``J'J dx = -J'r`` (SuperLU, minimum
+    degree ordering on J'J). A step that raises chi2 is halved until it does not (at most
+    20 times); plain Gauss-Newton never needs that near the optimum.
+    """
+    started = time.perf_counter()
+    problem = build_problem(steps, measurement_ids, sensor_offset, list(initial_landmarks))
+    state = initial_state(problem, initial_poses, initial_landmarks)
+    residuals, J = linearize(problem, state)
+    chi2 = chi2_initial = float(residuals @ residuals)
+    history: List[float] = []
+    converged = False
+    halvings = 0
+    last_step = float("inf")
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):
+        step, _ = _solve_normal_equations(J, residuals)
+        scale = 1.0
+        for _ in range(21):
+            candidate = _retract(problem, state, scale * step)
+            candidate_residuals = linearize(problem, candidate, jacobian=False)
+            candidate_chi2 = float(candidate_residuals @ candidate_residuals)
+            if candidate_chi2 <= chi2 * (1 + 1e-12) or scale < 1e-5:
+                break
+            scale *= 0.5
+            halvings += 1
+        state, chi2 = candidate, candidate_chi2
+        last_step = float(np.max(np.abs(scale * step))) if len(step) else 0.0
+        history.append(chi2)
+        if verbose:
+            print(f"  iteration {iterations}: chi2 {chi2:.6g}, max |dx| {last_step:.3g}, scale {scale:g}",
+                  file=sys.stderr)
+        residuals, J = linearize(problem, state)
+        if last_step < tolerance:
+            converged = True
+            break
+    gradient = J.T @ residuals
+    poses = np.array([_pose(problem, state, k) for k in range(1, len(problem.pose_column))]).reshape(-1, 3)
+    landmarks = {int(i): state[c:c + 2].copy() for i, c in zip(problem.landmark_ids, problem.landmark_column)}
+    return BatchResult(
+        poses=poses, landmarks=landmarks, iterations=iterations, converged=converged,
+        chi2_initial=chi2_initial, chi2=float(residuals @ residuals),
+        degrees_of_freedom=problem.degrees_of_freedom, residual_count=problem.residual_count,
+        dimension=problem.dimension, gradient_norm=float(np.max(np.abs(gradient))) if len(gradient) else 0.0,
+        last_step=last_step, halvings=halvings, history=history,
+        dropped_measurements=problem.dropped_measurements, seconds=time.perf_counter() - started)
+
+
+# ---------------------------------------------------------------------------------------
+# Ids that do not resolve to the final map
+# ---------------------------------------------------------------------------------------
+
+def unresolved_count(measurement_ids: Sequence, landmark_ids) -> int:
+    """Measurements whose id is >= 0 but not a feature of the final map."""
+    known = {int(i) for i in landmark_ids}
+    return sum(1 for ids in measurement_ids for i in np.asarray(ids) if int(i) >= 0 and int(i) not in known)
+
+
+# ---------------------------------------------------------------------------------------
+# Comparisons
+# ---------------------------------------------------------------------------------------
+
+def distance_summary(distance: np.ndarray) -> Dict[str, float]:
+    """count, RMS, max and share <= 1 m of a set of distances [m]."""
+    distance = np.asarray(distance, dtype=float)
+    if len(distance) == 0:
+        return {"count": 0, "rms": float("nan"), "max": float("nan"), "within_1m": float("nan")}
+    return {"count": int(len(distance)), "rms": float(np.sqrt(np.mean(distance**2))),
+            "max": float(distance.max()), "within_1m": float(np.mean(distance <= 1.0))}
+
+
+def _by_region(distance: np.ndarray, from_start: np.ndarray, near_radius: float) -> Dict[str, Dict]:
+    near = np.asarray(from_start) <= near_radius
+    return {"all": distance_summary(distance), "near": distance_summary(distance[near]),
+            "far": distance_summary(distance[~near])}
+
+
+def shared_measurement_pairs(first_ids: Sequence, second_ids: Sequence) -> Dict[int, int]:
+    """Landmarks of two runs that are the same landmark by their measurements: first-run
+    landmark a -> second-run landmark b when b holds more than half of a's measurements and
+    a more than half of b's (so the pairing is one-to-one)."""
+    counts: Dict[tuple, int] = {}
+    first_total: Dict[int, int] = {}
+    second_total: Dict[int, int] = {}
+    for a_ids, b_ids in zip(first_ids, second_ids):
+        for a, b in zip(np.asarray(a_ids), np.asarray(b_ids)):
+            a, b = int(a), int(b)
+            if a >= 0:
+                first_total[a] = first_total.get(a, 0) + 1
+            if b >= 0:
+                second_total[b] = second_total.get(b, 0) + 1
+            if a >= 0 and b >= 0:
+                counts[(a, b)] = counts.get((a, b), 0) + 1
+    return {a: b for (a, b), n in counts.items() if 2 * n > first_total[a] and 2 * n > second_total[b]}
+
+
+def association_difference(first_ids, second_ids, pairs: Dict[int, int]) -> Dict[str, int]:
+    """Counts of measurements by how the two runs associated them (``pairs`` maps the
+    first run's landmarks onto the second's): both_same (paired landmarks), both_different,
+    first_only / second_only (the other run has none), neither."""
+    counts = {"both_same": 0, "both_different": 0, "first_only": 0, "second_only": 0, "neither": 0}
+    for a_ids, b_ids in zip(first_ids, second_ids):
+        for a, b in zip(np.asarray(a_ids), np.asarray(b_ids)):
+            a, b = int(a), int(b)
+            if a >= 0 and b >= 0:
+                counts["both_same" if pairs.get(a) == b else "both_different"] += 1
+            elif a >= 0:
+                counts["first_only"] += 1
+            elif b >= 0:
+                counts["second_only"] += 1
+            else:
+                counts["neither"] += 1
+    return counts
+
+
+def consensus_ids(first_ids: Sequence, second_ids: Sequence, pairs: Dict[int, int]) -> List[np.ndarray]:
+    """The first run's ids where both runs associate the measurement with the same landmark
+    (by ``pairs``), -1 elsewhere."""
+    out = []
+    for a_ids, b_ids in zip(first_ids, second_ids):
+        a_ids, b_ids = np.asarray(a_ids, dtype=np.int64), np.asarray(b_ids, dtype=np.int64)
+        same = np.array([a >= 0 and pairs.get(int(a)) == int(b) for a, b in zip(a_ids, b_ids)], dtype=bool)
+        out.append(np.where(same, a_ids, -1))
+    return out
+
+
+def mahalanobis_summary(difference: Dict[int, np.ndarray], covariance: Dict[int, np.ndarray]) -> Dict[str, float]:
+    """d' P^-1 d per landmark with P the filter's own 2x2 marginal: median and share below
+    5.99 (95 % of chi-square(2)). A scale for the differences, not a test: the batch
+    optimum is not a random draw around the filter's estimate."""
+    values = np.array([float(d @ np.linalg.solve(covariance[k], d)) for k, d in difference.items()])
+    if len(values) == 0:
+        return {"median": float("nan"), "below_5.99": float("nan")}
+    return {"median": float(np.median(values)), "below_5.99": float(np.mean(values < 5.99))}
+
+
+def compare(runs: Dict[str, dict], near_radius: float, consensus: Optional["BatchResult"] = None) -> Dict:
+    """All numbers of the report.
+
+    Args:
+        runs: ``runs[name]`` = dict(map={id: (2,)}, covariance={id: (2, 2)}, batch=BatchResult,
+            trajectory=(N, 3), measurement_ids=[...]), for name in
+            ("ekf", "dc"), EKF first.
+        near_radius: landmarks this close to the start [m] are "near", the others "far".
+        consensus: batch optimum of the measurements both filters associate alike (ids of
+            the first run).
+    """
+    report: Dict = {"near_radius": near_radius, "filters": {}, "shares": [], "same_landmark": []}
+    for name, run in runs.items():
+        batch: BatchResult = run["batch"]
+        ids = sorted(batch.landmarks)
+        difference = {i: run["map"][i] - batch.landmarks[i] for i in ids}
+        distance = np.array([np.linalg.norm(difference[i]) for i in ids])
+        from_start = np.array([np.linalg.norm(batch.landmarks[i]) for i in ids])
+        report["filters"][name] = {
+            "map_landmarks": len(run["map"]), "batch_landmarks": len(batch.landmarks),
+            "iterations": batch.iterations, "converged": batch.converged, "halvings": batch.halvings,
+            "chi2_initial": batch.chi2_initial, "chi2": batch.chi2, "dof": batch.degrees_of_freedom,
+            "chi2_per_dof": batch.chi2_per_dof, "gradient_max": batch.gradient_norm,
+            "last_step": batch.last_step, "dropped_measurements": batch.dropped_measurements,
+            "solve_seconds": batch.seconds, "history": batch.history,
+            "map_vs_batch": _by_region(distance, from_start, near_radius),
+            "map_vs_batch_mahalanobis": mahalanobis_summary(difference, run["covariance"]) if run.get("covariance") else None,
+            "final_pose_vs_batch_m": float(np.linalg.norm(run["trajectory"][-1, :2] - batch.poses[-1, :2])),
+        }
+    names = list(runs)
+    if len(names) != 2:
+        return report
+    a, b = names
+    sets = {f"{a} map": runs[a]["map"], f"{b} map": runs[b]["map"],
+            f"{a} batch": runs[a]["batch"].landmarks, f"{b} batch": runs[b]["batch"].landmarks}
+    if consensus is not None:
+        sets["consensus batch"] = consensus.landmarks
+    from dcslam.pipeline import map_agreement
+
+    couples = [(f"{a} map", f"{b} map"), (f"{a} batch", f"{b} batch"), (f"{a} map", f"{b} batch"),
+               (f"{b} map", f"{a} batch"), (f"{a} map", f"{a} batch"), (f"{b} map", f"{b} batch")]
+    if consensus is not None:
+        couples += [(name, "consensus batch") for name in (f"{a} map", f"{a} batch", f"{b} map", f"{b} batch")]
+    for first, second in couples:
+        first_points = np.array(list(sets[first].values()), dtype=float).reshape(-1, 2)
+        second_points = np.array(list(sets[second].values()), dtype=float).reshape(-1, 2)
+        row = {"first": first, "second": second}
+        for radius in (1.0, 2.0):
+            agreement = map_agreement(first_points, second_points, radius)
+            row[f"{radius:g}m"] = (agreement.first_in_second, agreement.second_in_first)
+            for region, inside in (("near", lambda p: np.linalg.norm(p, axis=1) <= near_radius),
+                                   ("far", lambda p: np.linalg.norm(p, axis=1) > near_radius)):
+                forward = map_agreement(first_points[inside(first_points)], second_points, radius).first_in_second
+                backward = map_agreement(second_points[inside(second_points)], first_points, radius).first_in_second
+                row[f"{radius:g}m_{region}"] = (forward, backward)
+        report["shares"].append(row)
+
+    # The same landmark, by shared measurements: every set in the first run's ids.
+    pairs = shared_measurement_pairs(runs[a]["measurement_ids"], runs[b]["measurement_ids"])
+    in_first_ids = {f"{a} map": runs[a]["map"], f"{a} batch": runs[a]["batch"].landmarks}
+    for name in (f"{b} map", f"{b} batch"):
+        in_first_ids[name] = {k: sets[name][v] for k, v in pairs.items() if v in sets[name]}
+    if consensus is not None:
+        in_first_ids["consensus batch"] = consensus.landmarks
+    reference = runs[a]["batch"].landmarks
+    for first, second in couples:
+        keys = [k for k in pairs if k in in_first_ids[first] and k in in_first_ids[second] and k in reference]
+        distance = np.array([np.linalg.norm(in_first_ids[first][k] - in_first_ids[second][k]) for k in keys])
+        from_start = np.array([np.linalg.norm(reference[k]) for k in keys])
+        report["same_landmark"].append({"first": first, "second": second,
+                                        **_by_region(distance, from_start, near_radius)})
+    report["pairs"] = len(pairs)
+    report["association_difference"] = association_difference(
+        runs[a]["measurement_ids"], runs[b]["measurement_ids"], pairs)
+    if consensus is not None:
+        report["consensus"] = {"iterations": consensus.iterations, "converged": consensus.converged,
+                               "chi2": consensus.chi2, "dof": consensus.degrees_of_freedom,
+                               "chi2_per_dof": consensus.chi2_per_dof, "gradient_max": consensus.gradient_norm,
+                               "landmarks": len(consensus.landmarks)}
+    return report
+
+
+# ---------------------------------------------------------------------------------------
+# Command line
+# ---------------------------------------------------------------------------------------
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> List[str]:
+    return (["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+            + ["| " + " | ".join(row) + " |" for row in rows])
+
+
+def _rms_max(s: Dict) -> str:
+    return f"{s['rms']:.3f} / {s['max']:.3f} ({s['count']})"
+
+
+def format_report(report: Dict) -> str:
+    near = report["near_radius"]
+    lines = [f"Victoria Park, {report.get('steps', '?')} steps, seed {report.get('seed', '?')}; "
+             f"near = landmarks <= {near:g} m from the start, far = beyond", ""]
+    lines.append("1. Each filter's map against the batch optimum (Gauss-Newton) of its own associations")
+    rows = []
+    for name, f in report["filters"].items():
+        m = f["map_vs_batch"]
+        mahalanobis = f["map_vs_batch_mahalanobis"]
+        rows.append([
+            name, f"{f['map_landmarks']} / {f['batch_landmarks']}", str(f["iterations"]), str(f["converged"]),
+            f"{f['chi2_initial']:.4g} -> {f['chi2']:.6g}", str(f["dof"]), f"{f['chi2_per_dof']:.4f}",
+            f"{f['gradient_max']:.1e}", _rms_max(m["all"]), f"{m['all']['within_1m']:.3f}",
+            _rms_max(m["near"]), _rms_max(m["far"]), f"{m['far']['within_1m']:.3f}",
+            "-" if mahalanobis is None else f"{mahalanobis['median']:.2f} / {mahalanobis['below_5.99']:.3f}"])
+    lines += _table(["filter", "landmarks map / batch", "GN iter.", "converged", "chi2 start -> end", "dof",
+                     "chi2/dof", "max abs(J'r)", "map-batch RMS / max [m] (n)", "within 1 m", "near RMS / max (n)",
+                     "far RMS / max (n)", "far within 1 m", "d'P^-1 d median / share < 5.99"], rows)
+    for name, f in report["filters"].items():
+        lines.append(f"- {name}: filter's final pose vs batch {f['final_pose_vs_batch_m']:.3f} m; GN step halvings "
+                     f"{f['halvings']}; last max abs(dx) {f['last_step']:.1e}; ids not in the map (left out) "
+                     f"{f['dropped_measurements']}; solve {f['solve_seconds']:.1f} s; chi2 by iteration "
+                     + ", ".join(f"{c:.6g}" for c in f["history"]))
+    if "consensus" in report:
+        c = report["consensus"]
+        lines += ["", f"Consensus batch (only the measurements both filters associate with the same landmark; "
+                  "a weak arbiter, see the module docstring): "
+                  f"{c['landmarks']} landmarks, {c['iterations']} GN iterations, converged {c['converged']}, "
+                  f"chi2/dof {c['chi2']:.6g} / {c['dof']} = {c['chi2_per_dof']:.4f}, max abs(J'r) {c['gradient_max']:.1e}"]
+    lines += ["", "2. Share of A's landmarks within r of a landmark of B / of B's within r of A "
+              "(dcslam.pipeline.map_agreement); near/far: the counted map's own landmarks"]
+    rows = [[row["first"], row["second"]] + [f"{row[key][0]:.3f} / {row[key][1]:.3f}"
+                                              for key in ("1m", "2m", "1m_near", "1m_far", "2m_near", "2m_far")]
+            for row in report["shares"]]
+    lines += _table(["A", "B", "1 m", "2 m", "1 m near", "1 m far", "2 m near", "2 m far"], rows)
+    if report.get("same_landmark"):
+        lines += ["", f"3. Distance between the same landmark in A and B ({report['pairs']} EKF/D&C landmark pairs "
+                  "holding the majority of each other's measurements; near/far by the EKF batch position)"]
+        rows = [[row["first"], row["second"], _rms_max(row["all"]), f"{row['all']['within_1m']:.3f}",
+                 _rms_max(row["near"]), _rms_max(row["far"]), f"{row['far']['within_1m']:.3f}"]
+                for row in report["same_landmark"]]
+        lines += _table(["A", "B", "RMS / max [m] (n)", "within 1 m", "near RMS / max (n)", "far RMS / max (n)",
+                         "far within 1 m"], rows)
+        lines += ["", "Measurements by association (EKF, D&C): "
+                  + ", ".join(f"{k} {v}" for k, v in report["association_difference"].items())]
+    if "seconds" in report:
+        lines.append(f"total {report['seconds']:.1f} s")
+    return "\n".join(lines)
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.floating, np.integer, np.bool_)):
+        return value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def run_filter(steps: Sequence, config, name: str, sensor_offset,
+               max_iterations: int = 50, tolerance: float = 1e-6, verbose: bool = False) -> Dict:
+    """One filter's run and the batch optimum of its associations (initialised from the
+    filter's trajectory and final map)."""
+    from dcslam.pipeline import SlamPipeline
+
+    result = SlamPipeline(steps, config, filter=name).run()
+    estimate = result.estimate
+    landmarks = {int(i): np.array(p, dtype=float) for i, p in zip(estimate.landmark_ids, estimate.landmarks)}
+    covariance = {int(i): np.array(estimate.covariance[3 + 2 * k:5 + 2 * k, 3 + 2 * k:5 + 2 * k])
+                  for k, i in enumerate(estimate.landmark_ids)}
+    measurement_ids = [np.asarray(ids, dtype=np.int64) for ids in result.measurement_ids]
+    unresolved = unresolved_count(measurement_ids, landmarks)
+    if unresolved:
+        # resolve() right after estimate() maps every id to the final map (or -1).
+        raise RuntimeError(f"{name}: {unresolved} measurement ids are not landmarks of the final map")
+    if verbose:
+        print(f"{name}: {len(landmarks)} landmarks; batch solve:", file=sys.stderr)
+    batch = batch_optimum(steps, measurement_ids, sensor_offset, result.trajectory, landmarks,
+                          max_iterations=max_iterations, tolerance=tolerance, verbose=verbose)
+    return {"map": landmarks, "covariance": covariance, "batch": batch, "trajectory": result.trajectory,
+            "measurement_ids": measurement_ids}
+
+
+def main(argv: Optional[Sequence[str]] = None) -> Dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=0, help="slam_config(seed=...)")
+    parser.add_argument("--max-steps", type=int, default=None, help="run only the first N steps")
+    parser.add_argument("--max-iterations", type=int, default=50)
+    parser.add_argument("--tolerance", type=float, default=1e-6, help="stop at max |dx| below this")
+    parser.add_argument("--near", type=float, default=150.0, help="'near the start' radius [m] (150)")
+    parser.add_argument("--json", dest="json_out", default=None, help="write the numbers here")
+    parser.add_argument("--verbose", action="store_true", help="print each Gauss-Newton iteration")
+    args = parser.parse_args(argv)
+
+    from dcslam.datasets import victoria_park
+
+    started = time.perf_counter()
+    vp = victoria_park()
+    steps = vp.steps if args.max_steps is None else vp.steps[:args.max_steps]
+    config = vp.slam_config(seed=args.seed)
+    runs = {name: run_filter(steps, config, name, vp.sensor_offset,
+                             max_iterations=args.max_iterations, tolerance=args.tolerance, verbose=args.verbose)
+            for name in ("ekf", "dc")}
+    pairs = shared_measurement_pairs(runs["ekf"]["measurement_ids"], runs["dc"]["measurement_ids"])
+    if args.verbose:
+        print("consensus: batch solve:", file=sys.stderr)
+    consensus = batch_optimum(steps, consensus_ids(runs["ekf"]["measurement_ids"], runs["dc"]["measurement_ids"], pairs),
+                              vp.sensor_offset, runs["ekf"]["trajectory"], runs["ekf"]["map"],
+                              max_iterations=args.max_iterations, tolerance=args.tolerance, verbose=args.verbose)
+    report = compare(runs, args.near, consensus)
+    report.update(seed=args.seed, steps=len(steps), seconds=time.perf_counter() - started)
+    print(format_report(report))
+    if args.json_out:
+        with open(args.json_out, "w") as out:
+            json.dump(_jsonable(report), out, indent=1)
+    return report
+
+
+if __name__ == "__main__":
+    main()
