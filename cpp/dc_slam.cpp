@@ -315,6 +315,18 @@ std::unique_ptr<MapJoin> DCSlam::make_join(const NodeMap& first, const NodeMap& 
       last_chance(*second.map, second.tentative, first_leaf, last_leaf));
 }
 
+namespace {
+
+// What a join did to ids: each merged one now names the feature it joined; dropped ones, -1.
+void record_merges(const MapJoin& join, std::unordered_map<std::int64_t, std::int64_t>& aliases) {
+  for (const auto& [from, to] : join.merged_ids()) {
+    if (from != to) aliases[from] = to;
+  }
+  for (std::int64_t id : join.dropped_ids()) aliases[id] = -1;
+}
+
+}  // namespace
+
 void DCSlam::complete(JoinTask& task) {
   auto map = std::make_shared<const GaussianMap>(task.join->take_result());
   std::vector<TentativeFeature> tentative =
@@ -324,10 +336,7 @@ void DCSlam::complete(JoinTask& task) {
   JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
   event.report = task.join->report();
   event.step_finished = steps_;
-  for (const auto& [from, to] : task.join->merged_ids()) {
-    if (from != to) merged_into_[from] = to;
-  }
-  for (std::int64_t id : task.join->dropped_ids()) merged_into_[id] = -1;
+  record_merges(*task.join, merged_into_);
   const std::shared_ptr<Node> result = task.result.lock();
   result->tentative = std::move(tentative);
   result->map = std::move(map);
@@ -369,17 +378,6 @@ void DCSlam::finish_joins() {
     queue_.pop_front();
   }
 }
-
-namespace {
-
-void record_merges(const MapJoin& join, std::unordered_map<std::int64_t, std::int64_t>& aliases) {
-  for (const auto& [from, to] : join.merged_ids()) {
-    if (from != to) aliases[from] = to;
-  }
-  for (std::int64_t id : join.dropped_ids()) aliases[id] = -1;
-}
-
-}  // namespace
 
 DCSlam::NodeMap DCSlam::materialize(const std::shared_ptr<Node>& node, IdAliases& aliases) const {
   std::shared_ptr<Node> left, right;

@@ -58,9 +58,9 @@ const EkfPairingModel::Prediction* EkfPairingModel::find_prediction(int feature)
 }
 
 const EkfPairingModel::Prediction& EkfPairingModel::prediction(int feature) const {
-  const int slot = slot_of_feature_[static_cast<std::size_t>(feature)];
-  if (slot < 0) throw InvalidArgument("EkfPairingModel: feature " + std::to_string(feature) + " not prepared");
-  return predictions_[static_cast<std::size_t>(slot)];
+  const Prediction* found = find_prediction(feature);
+  if (!found) throw InvalidArgument("EkfPairingModel: feature " + std::to_string(feature) + " not prepared");
+  return *found;
 }
 
 const Mat2& EkfPairingModel::noise(int measurement) const {

@@ -89,24 +89,24 @@ JcbbResult Jcbb::run(const CandidateLists& candidates, const PairingModel& model
   const int m = num_measurements_;
 
   // Trying the individually closest candidate first finds a good hypothesis early, so the
-  // distance bound starts pruning sooner. The lists only grow: shrinking would free them.
-  if (ordered_candidates_.size() < static_cast<std::size_t>(m)) {
-    ordered_candidates_.resize(static_cast<std::size_t>(m));
-  }
-  for (int i = 0; i < m; ++i) {
-    if (ranked) {
-      ordered_candidates_[static_cast<std::size_t>(i)] = candidates[i];
-      continue;
+  // distance bound starts pruning sooner. Lists already ranked are searched as they are; the
+  // solver's own only grow (shrinking would free them).
+  ordered_ = ranked ? &candidates : &ordered_candidates_;
+  if (!ranked) {
+    if (ordered_candidates_.size() < static_cast<std::size_t>(m)) {
+      ordered_candidates_.resize(static_cast<std::size_t>(m));
     }
-    ranked_.clear();
-    for (int feature : candidates[i]) {
-      ranked_.emplace_back(individual_distance_sq(model, Pairing{i, feature}), feature);
+    for (int i = 0; i < m; ++i) {
+      ranked_.clear();
+      for (int feature : candidates[i]) {
+        ranked_.emplace_back(individual_distance_sq(model, Pairing{i, feature}), feature);
+      }
+      std::stable_sort(ranked_.begin(), ranked_.end(),
+                       [](const auto& a, const auto& b) { return a.first < b.first; });
+      auto& ordered = ordered_candidates_[static_cast<std::size_t>(i)];
+      ordered.clear();
+      for (const auto& [distance_sq, feature] : ranked_) ordered.push_back(feature);
     }
-    std::stable_sort(ranked_.begin(), ranked_.end(),
-                     [](const auto& a, const auto& b) { return a.first < b.first; });
-    auto& ordered = ordered_candidates_[static_cast<std::size_t>(i)];
-    ordered.clear();
-    for (const auto& [distance_sq, feature] : ranked_) ordered.push_back(feature);
   }
   int pairable = 0;
   score_bound_from_.assign(static_cast<std::size_t>(m) + 1, 0.0);
@@ -146,6 +146,7 @@ JcbbResult Jcbb::run(const CandidateLists& candidates, const PairingModel& model
   result.joint_distance_sq = best_.empty() ? 0.0 : best_distance_sq_;
   result.nodes_expanded = nodes_;
   result.bound_hit = bound_hit_;
+  ordered_ = nullptr;
   model_ = nullptr;
   likelihood_ = nullptr;
   return result;
@@ -186,7 +187,7 @@ void Jcbb::search(int measurement, int depth, double distance_sq, double score) 
 
   const double bound_here = score + score_bound_from_[measurement];
   const double bound_after = score + score_bound_from_[measurement + 1];
-  for (int feature : ordered_candidates_[measurement]) {
+  for (int feature : (*ordered_)[measurement]) {
     // Re-checked per candidate: the best may have improved inside the previous subtree.
     if (!can_improve(bound_here, distance_sq)) break;
     if (feature_in_use(depth, feature)) continue;

@@ -126,7 +126,8 @@ class Jcbb {
   ChiSquareGate gate_;
   const PairingModel* model_ = nullptr;
   int num_measurements_ = 0;
-  CandidateLists ordered_candidates_;
+  CandidateLists ordered_candidates_;        // the caller's lists, ranked by the solver
+  const CandidateLists* ordered_ = nullptr;  // the lists searched: those, or the caller's own
   const JcbbLikelihood* likelihood_ = nullptr;  // null: "most pairings"
   // Upper bound on the score that measurements >= i can still add (their count of pairable
   // measurements for "most pairings").
