@@ -3,7 +3,6 @@
 Skipped when GTSAM (the optional extra ``dcslam[gtsam]``) is not installed.
 """
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -12,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from script_loader import load_script
+
 gtsam = pytest.importorskip("gtsam")
 
 ROOT = Path(__file__).resolve().parent.parent.parent
@@ -19,15 +20,12 @@ SCRIPT = ROOT / "benchmarks" / "gtsam_compare.py"
 ISAM_FILE = ROOT / "tests" / "data" / "isam_victoria_park.txt.gz"
 
 
-def load_script():
-    spec = importlib.util.spec_from_file_location("gtsam_compare", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def load_compare_script():
+    return load_script(str(SCRIPT.relative_to(ROOT)))
 
 
 def test_point_factor_jacobians_match_finite_differences():
-    compare = load_script()
+    compare = load_compare_script()
     factor = compare.PointObservationFactors().make(3, 7, np.array([4.0, -1.5]), np.diag([0.4, 0.3]))
     values = gtsam.Values()
     values.insert(compare.pose_key(3), gtsam.Pose2(1.2, -0.7, 0.9))

@@ -1,21 +1,16 @@
 """tools/timing_figures.py on small hand-made dcslam_bench outputs."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "timing_figures.py"
+from script_loader import load_script
 
 
 @pytest.fixture(scope="module")
 def timing_figures():
-    spec = importlib.util.spec_from_file_location("timing_figures", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("tools/timing_figures.py")
 
 
 def bench_run(filter_name, step_seconds, features=10, total_seconds=None):

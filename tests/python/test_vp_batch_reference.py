@@ -1,26 +1,22 @@
 """tools/vp_batch_reference.py: residual Jacobians, Gauss-Newton on small synthetic problems
 with a known answer, the association helpers, and a short Victoria Park smoke run."""
 
-import importlib.util
 import json
 import types
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from dcslam import geometry
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "vp_batch_reference.py"
+from script_loader import load_script
+
 OFFSET = (3.78, 0.5, 0.0)
 
 
 @pytest.fixture(scope="module")
 def tool():
-    spec = importlib.util.spec_from_file_location("vp_batch_reference", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("tools/vp_batch_reference.py")
 
 
 def synthetic(steps=60, landmarks=12, noise=True, seed=1, fixed_first=True):
