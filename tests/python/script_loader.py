@@ -1,0 +1,15 @@
+"""Imports the project's scripts (tools/, benchmarks/), which are files, not packages."""
+
+import importlib.util
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def load_script(relative_path: str):
+    """The module of ``ROOT / relative_path``, executed once per call."""
+    path = ROOT / relative_path
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
