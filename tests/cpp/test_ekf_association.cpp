@@ -113,12 +113,25 @@ std::vector<int> gate_passing(const GaussianMap& map, ObservationModel observati
   return passing;
 }
 
-TEST_P(EkfAssociationTest, CandidateSearchNeverMissesAGatePassingFeature) {
-  const ObservationModel observation = GetParam();
+SlamConfig jcbb_config(ObservationModel observation) {
   SlamConfig config;
   config.observation = observation;
   config.sensor_offset = kOffset;
   config.association = Association::Jcbb;
+  return config;
+}
+
+// What the filter must return for measurement i given an oracle's best hypothesis (kStar:
+// unpaired): the oracle's feature, else a new feature if nothing gated, else a rejection.
+Index expected_pairing(const std::vector<int>& best, const CandidateLists& candidates, int i) {
+  const auto k = static_cast<std::size_t>(i);
+  if (best[k] != kStar) return best[k];
+  return candidates[k].empty() ? kNewFeature : kRejected;
+}
+
+TEST_P(EkfAssociationTest, CandidateSearchNeverMissesAGatePassingFeature) {
+  const ObservationModel observation = GetParam();
+  SlamConfig config = jcbb_config(observation);
   const double gate = chi2_quantile(2, config.gate_confidence);
   std::mt19937_64 rng(11);
   std::normal_distribution<double> normal(0.0, 1.0);
@@ -199,10 +212,7 @@ std::vector<int> brute_force_jcbb(const CandidateLists& candidates, const Pairin
 
 TEST_P(EkfAssociationTest, JcbbEqualsExhaustiveEnumerationOnCrowdedScans) {
   const ObservationModel observation = GetParam();
-  SlamConfig config;
-  config.observation = observation;
-  config.sensor_offset = kOffset;
-  config.association = Association::Jcbb;
+  SlamConfig config = jcbb_config(observation);
   const double gate = chi2_quantile(2, config.gate_confidence);
   std::mt19937_64 rng(5);
   std::normal_distribution<double> normal(0.0, 1.0);
@@ -234,12 +244,9 @@ TEST_P(EkfAssociationTest, JcbbEqualsExhaustiveEnumerationOnCrowdedScans) {
     for (int j = 0; j < map.num_features(); ++j) model.prepare(j);
     const std::vector<int> best = brute_force_jcbb(candidates, model, config.gate_confidence);
     for (int i = 0; i < m; ++i) {
-      const auto& list = candidates[static_cast<std::size_t>(i)];
-      const Index expected = best[static_cast<std::size_t>(i)] != kStar ? best[static_cast<std::size_t>(i)]
-                             : list.empty()                             ? kNewFeature
-                                                                         : kRejected;
+      const Index expected = expected_pairing(best, candidates, i);
       EXPECT_EQ(pairing[static_cast<std::size_t>(i)], expected) << "trial " << trial << " measurement " << i;
-      if (list.size() > 1) ++ambiguous_scans;
+      if (candidates[static_cast<std::size_t>(i)].size() > 1) ++ambiguous_scans;
     }
     EXPECT_EQ(counters["jcbb_bound_hits"], 0.0);
     EXPECT_GT(counters["jcbb_nodes"], 0.0);
@@ -276,10 +283,7 @@ std::vector<int> brute_force_likelihood(const CandidateLists& candidates, const 
 // for range-bearing), as exhaustive enumeration finds it.
 TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowdedScans) {
   const ObservationModel observation = GetParam();
-  SlamConfig config;
-  config.observation = observation;
-  config.sensor_offset = kOffset;
-  config.association = Association::Jcbb;
+  SlamConfig config = jcbb_config(observation);
   config.unexplained_density = observation == ObservationModel::RangeBearing ? 2.0 : 0.3;
   const double gate = chi2_quantile(2, config.gate_confidence);
   std::mt19937_64 rng(15);
@@ -315,10 +319,7 @@ TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowd
     for (int j = 0; j < map.num_features(); ++j) model.prepare(j);
     const std::vector<int> best = brute_force_likelihood(candidates, model, config.gate_confidence, log_lambda);
     for (int i = 0; i < m; ++i) {
-      const auto& list = candidates[static_cast<std::size_t>(i)];
-      const Index expected = best[static_cast<std::size_t>(i)] != kStar ? best[static_cast<std::size_t>(i)]
-                             : list.empty()                             ? kNewFeature
-                                                                         : kRejected;
+      const Index expected = expected_pairing(best, candidates, i);
       EXPECT_EQ(pairing[static_cast<std::size_t>(i)], expected) << "trial " << trial << " measurement " << i;
       declined += expected == kRejected;
     }
