@@ -191,6 +191,27 @@ TEST_P(EkfAssociationTest, CandidateSearchNeverMissesAGatePassingFeature) {
   EXPECT_LT(candidates_total, features_total / 5);  // and the search is a search, not a scan
 }
 
+// A measurement of a random feature of a crowded map, with noise large next to the
+// features' spacing.
+Vec2 crowded_measurement(std::mt19937_64& rng, ObservationModel observation, const GaussianMap& map) {
+  std::normal_distribution<double> normal(0.0, 1.0);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  const int target = static_cast<int>(uniform(rng) * static_cast<double>(map.num_features()));
+  const Vec2 z = observe(observation, kOffset, map.robot(), map.feature(target));
+  return z + (observation == ObservationModel::RangeBearing ? Vec2(0.2 * normal(rng), 0.1 * normal(rng))
+                                                            : Vec2(0.3 * normal(rng), 0.3 * normal(rng)));
+}
+
+// Every measurement's gate-passing features, by the brute-force gate.
+CandidateLists gated_candidates(const GaussianMap& map, ObservationModel observation, const MeasurementMatrix& z,
+                                const std::vector<Mat2>& R, double gate) {
+  CandidateLists candidates(static_cast<std::size_t>(z.rows()));
+  for (int i = 0; i < z.rows(); ++i) {
+    candidates[static_cast<std::size_t>(i)] = gate_passing(map, observation, z, R, i, gate);
+  }
+  return candidates;
+}
+
 // The best admissible hypothesis (testing::for_each_admissible_hypothesis): most pairings,
 // then lowest D^2.
 std::vector<int> brute_force_jcbb(const CandidateLists& candidates, const PairingModel& model, double confidence) {
@@ -215,8 +236,6 @@ TEST_P(EkfAssociationTest, JcbbEqualsExhaustiveEnumerationOnCrowdedScans) {
   SlamConfig config = jcbb_config(observation);
   const double gate = chi2_quantile(2, config.gate_confidence);
   std::mt19937_64 rng(5);
-  std::normal_distribution<double> normal(0.0, 1.0);
-  std::uniform_real_distribution<double> uniform(0.0, 1.0);
   int ambiguous_scans = 0;
   for (int trial = 0; trial < 60; ++trial) {
     // Few features close together under a large covariance: many candidates per measurement.
@@ -227,18 +246,14 @@ TEST_P(EkfAssociationTest, JcbbEqualsExhaustiveEnumerationOnCrowdedScans) {
     MeasurementMatrix z(m, 2);
     std::vector<Mat2> R{noise_for(observation)};
     for (int i = 0; i < m; ++i) {
-      const int target = static_cast<int>(uniform(rng) * static_cast<double>(map.num_features()));
-      Vec2 zi = observe(observation, kOffset, map.robot(), map.feature(target));
-      zi += observation == ObservationModel::RangeBearing ? Vec2(0.2 * normal(rng), 0.1 * normal(rng))
-                                                          : Vec2(0.3 * normal(rng), 0.3 * normal(rng));
+      const Vec2 zi = crowded_measurement(rng, observation, map);
       z.row(i) = zi.transpose();
     }
     std::vector<Index> pairing;
     std::map<std::string, double> counters;
     association.associate(map, z, R, pairing, counters);
 
-    CandidateLists candidates(m);
-    for (int i = 0; i < m; ++i) candidates[static_cast<std::size_t>(i)] = gate_passing(map, observation, z, R, i, gate);
+    const CandidateLists candidates = gated_candidates(map, observation, z, R, gate);
     EkfPairingModel model;
     model.reset(map, observation, kOffset, z, R);
     for (int j = 0; j < map.num_features(); ++j) model.prepare(j);
@@ -287,7 +302,6 @@ TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowd
   config.unexplained_density = observation == ObservationModel::RangeBearing ? 2.0 : 0.3;
   const double gate = chi2_quantile(2, config.gate_confidence);
   std::mt19937_64 rng(15);
-  std::normal_distribution<double> normal(0.0, 1.0);
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
   int declined = 0;  // measurements with candidates that the likelihood leaves unpaired
   for (int trial = 0; trial < 60; ++trial) {
@@ -299,10 +313,7 @@ TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowd
     std::vector<Mat2> R;
     std::vector<double> log_lambda;
     for (int i = 0; i < m; ++i) {
-      const int target = static_cast<int>(uniform(rng) * static_cast<double>(map.num_features()));
-      Vec2 zi = observe(observation, kOffset, map.robot(), map.feature(target));
-      zi += observation == ObservationModel::RangeBearing ? Vec2(0.2 * normal(rng), 0.1 * normal(rng))
-                                                          : Vec2(0.3 * normal(rng), 0.3 * normal(rng));
+      const Vec2 zi = crowded_measurement(rng, observation, map);
       z.row(i) = zi.transpose();
       R.push_back(noise_for(observation) * (0.5 + uniform(rng)));
       const double jacobian = observation == ObservationModel::RangeBearing ? std::abs(zi(0)) : 1.0;
@@ -312,8 +323,7 @@ TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowd
     std::map<std::string, double> counters;
     association.associate(map, z, R, pairing, counters);
 
-    CandidateLists candidates(m);
-    for (int i = 0; i < m; ++i) candidates[static_cast<std::size_t>(i)] = gate_passing(map, observation, z, R, i, gate);
+    const CandidateLists candidates = gated_candidates(map, observation, z, R, gate);
     EkfPairingModel model;
     model.reset(map, observation, kOffset, z, R);
     for (int j = 0; j < map.num_features(); ++j) model.prepare(j);
