@@ -212,6 +212,23 @@ CandidateLists gated_candidates(const GaussianMap& map, ObservationModel observa
   return candidates;
 }
 
+// The filter's association of one scan against a map whose features it is told of.
+std::vector<Index> filter_pairing(const SlamConfig& config, const GaussianMap& map, const MeasurementMatrix& z,
+                                  const std::vector<Mat2>& R, std::map<std::string, double>& counters) {
+  EkfAssociation association(config);
+  for (Index k = 0; k < map.num_features(); ++k) association.feature_added(map, k);
+  std::vector<Index> pairing;
+  association.associate(map, z, R, pairing, counters);
+  return pairing;
+}
+
+// The oracles' pairing model, with every feature's prediction prepared.
+void prepare_every_feature(EkfPairingModel& model, const GaussianMap& map, ObservationModel observation,
+                           const MeasurementMatrix& z, const std::vector<Mat2>& R) {
+  model.reset(map, observation, kOffset, z, R);
+  for (int j = 0; j < map.num_features(); ++j) model.prepare(j);
+}
+
 // The best admissible hypothesis (testing::for_each_admissible_hypothesis): most pairings,
 // then lowest D^2.
 std::vector<int> brute_force_jcbb(const CandidateLists& candidates, const PairingModel& model, double confidence) {
@@ -240,23 +257,18 @@ TEST_P(EkfAssociationTest, JcbbEqualsExhaustiveEnumerationOnCrowdedScans) {
   for (int trial = 0; trial < 60; ++trial) {
     // Few features close together under a large covariance: many candidates per measurement.
     const GaussianMap map = random_map(rng, 7, 1.5, 0.2, 0.05, 0.25);
-    EkfAssociation association(config);
-    for (Index k = 0; k < map.num_features(); ++k) association.feature_added(map, k);
     const int m = 5;
     MeasurementMatrix z(m, 2);
     std::vector<Mat2> R{noise_for(observation)};
     for (int i = 0; i < m; ++i) {
-      const Vec2 zi = crowded_measurement(rng, observation, map);
-      z.row(i) = zi.transpose();
+      z.row(i) = crowded_measurement(rng, observation, map).transpose();
     }
-    std::vector<Index> pairing;
     std::map<std::string, double> counters;
-    association.associate(map, z, R, pairing, counters);
+    const std::vector<Index> pairing = filter_pairing(config, map, z, R, counters);
 
     const CandidateLists candidates = gated_candidates(map, observation, z, R, gate);
     EkfPairingModel model;
-    model.reset(map, observation, kOffset, z, R);
-    for (int j = 0; j < map.num_features(); ++j) model.prepare(j);
+    prepare_every_feature(model, map, observation, z, R);
     const std::vector<int> best = brute_force_jcbb(candidates, model, config.gate_confidence);
     for (int i = 0; i < m; ++i) {
       const Index expected = expected_pairing(best, candidates, i);
@@ -306,8 +318,6 @@ TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowd
   int declined = 0;  // measurements with candidates that the likelihood leaves unpaired
   for (int trial = 0; trial < 60; ++trial) {
     const GaussianMap map = random_map(rng, 7, 1.5, 0.2, 0.05, 0.25);
-    EkfAssociation association(config);
-    for (Index k = 0; k < map.num_features(); ++k) association.feature_added(map, k);
     const int m = 5;
     MeasurementMatrix z(m, 2);
     std::vector<Mat2> R;
@@ -319,14 +329,12 @@ TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowd
       const double jacobian = observation == ObservationModel::RangeBearing ? std::abs(zi(0)) : 1.0;
       log_lambda.push_back(std::log(config.unexplained_density * jacobian));
     }
-    std::vector<Index> pairing;
     std::map<std::string, double> counters;
-    association.associate(map, z, R, pairing, counters);
+    const std::vector<Index> pairing = filter_pairing(config, map, z, R, counters);
 
     const CandidateLists candidates = gated_candidates(map, observation, z, R, gate);
     EkfPairingModel model;
-    model.reset(map, observation, kOffset, z, R);
-    for (int j = 0; j < map.num_features(); ++j) model.prepare(j);
+    prepare_every_feature(model, map, observation, z, R);
     const std::vector<int> best = brute_force_likelihood(candidates, model, config.gate_confidence, log_lambda);
     for (int i = 0; i < m; ++i) {
       const Index expected = expected_pairing(best, candidates, i);
