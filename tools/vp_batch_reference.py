@@ -668,6 +668,11 @@ def _jsonable(value):
     return value
 
 
+def landmarks_by_id(estimate) -> Dict[int, np.ndarray]:
+    """An :class:`~dcslam.Estimate`'s landmark positions by id (copies)."""
+    return {int(i): np.array(p, dtype=float) for i, p in zip(estimate.landmark_ids, estimate.landmarks)}
+
+
 def run_filter(steps: Sequence, config, name: str, sensor_offset,
                max_iterations: int = 50, tolerance: float = 1e-6, verbose: bool = False) -> Dict:
     """One filter's run and the batch optimum of its associations (initialised from the
@@ -676,7 +681,7 @@ def run_filter(steps: Sequence, config, name: str, sensor_offset,
 
     result = SlamPipeline(steps, config, filter=name).run()
     estimate = result.estimate
-    landmarks = {int(i): np.array(p, dtype=float) for i, p in zip(estimate.landmark_ids, estimate.landmarks)}
+    landmarks = landmarks_by_id(estimate)
     covariance = {int(i): np.array(estimate.covariance[3 + 2 * k:5 + 2 * k, 3 + 2 * k:5 + 2 * k])
                   for k, i in enumerate(estimate.landmark_ids)}
     measurement_ids = [np.asarray(ids, dtype=np.int64) for ids in result.measurement_ids]

@@ -278,7 +278,7 @@ def same_associations(steps: Sequence, config, everything, batch, bin_steps: int
     boundaries = SlamPipeline(steps, dataclasses.replace(config, keep_local_map_poses=True),
                               filter="dc").run().estimate.past_pose_ids
     maps = {"ekf": landmarks_of(everything[0], everything[2]),
-            "dc": {int(i): np.array(p) for i, p in zip(dc.estimate.landmark_ids, dc.estimate.landmarks)}}
+            "dc": batch_reference.landmarks_by_id(dc.estimate)}
     ids = sorted(batch.landmarks)
     error = {name: distances(landmarks, batch.landmarks, ids) for name, landmarks in maps.items()}
     first = first_seen([s.landmark_ids for s in steps])
@@ -323,7 +323,7 @@ def one_join(steps: Sequence, config, sensor_offset, split: int, everything, bat
 
     dc = SlamPipeline(steps, dataclasses.replace(config, local_map_features=len(ids1), keep_local_map_poses=True),
                       filter="dc").run()
-    dc_map = {int(i): np.array(p) for i, p in zip(dc.estimate.landmark_ids, dc.estimate.landmarks)}
+    dc_map = batch_reference.landmarks_by_id(dc.estimate)
     past = [int(i) for i in dc.estimate.past_pose_ids]
     out["dc"] = {"local_map_features": len(ids1), "past_pose_ids": past, "reproduced": past == [split],
                  "reproducible_split": reproducible_split(steps, split),

@@ -131,7 +131,7 @@ Index expected_pairing(const std::vector<int>& best, const CandidateLists& candi
 
 TEST_P(EkfAssociationTest, CandidateSearchNeverMissesAGatePassingFeature) {
   const ObservationModel observation = GetParam();
-  SlamConfig config = jcbb_config(observation);
+  const SlamConfig config = jcbb_config(observation);
   const double gate = chi2_quantile(2, config.gate_confidence);
   std::mt19937_64 rng(11);
   std::normal_distribution<double> normal(0.0, 1.0);
@@ -250,7 +250,7 @@ std::vector<int> brute_force_jcbb(const CandidateLists& candidates, const Pairin
 
 TEST_P(EkfAssociationTest, JcbbEqualsExhaustiveEnumerationOnCrowdedScans) {
   const ObservationModel observation = GetParam();
-  SlamConfig config = jcbb_config(observation);
+  const SlamConfig config = jcbb_config(observation);
   const double gate = chi2_quantile(2, config.gate_confidence);
   std::mt19937_64 rng(5);
   int ambiguous_scans = 0;
