@@ -31,7 +31,8 @@ between the same landmark in two sets (paired by shared measurements), each near
 and beyond (``--near``, 150 m).
 
 Usage:
-    .venv/bin/python tools/vp_batch_reference.py [--seed S] [--max-steps N] [--json OUT]
+    .venv/bin/python tools/vp_batch_reference.py [--seed S] [--max-steps N]
+        [--local-map-features P] [--json OUT]
 
 This is an analysis tool, not a test of the project's map-agreement target: it reports
 numbers and asserts nothing. Only numpy/scipy are used (no GTSAM); Jacobians are the
@@ -701,6 +702,8 @@ def main(argv: Optional[Sequence[str]] = None) -> Dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0, help="slam_config(seed=...)")
     parser.add_argument("--max-steps", type=int, default=None, help="run only the first N steps")
+    parser.add_argument("--local-map-features", type=int, default=None,
+                        help="D&C's local map size (default: slam_config()'s)")
     parser.add_argument("--max-iterations", type=int, default=50)
     parser.add_argument("--tolerance", type=float, default=1e-6, help="stop at max |dx| below this")
     parser.add_argument("--near", type=float, default=150.0, help="'near the start' radius [m] (150)")
@@ -714,6 +717,8 @@ def main(argv: Optional[Sequence[str]] = None) -> Dict:
     vp = victoria_park()
     steps = vp.steps if args.max_steps is None else vp.steps[:args.max_steps]
     config = vp.slam_config(seed=args.seed)
+    if args.local_map_features is not None:
+        config = dataclasses.replace(config, local_map_features=args.local_map_features)
     runs = {name: run_filter(steps, config, name, vp.sensor_offset,
                              max_iterations=args.max_iterations, tolerance=args.tolerance, verbose=args.verbose)
             for name in ("ekf", "dc")}
