@@ -33,6 +33,7 @@ void define_config(py::module_& m) {
       .def_readwrite("jcbb_max_nodes", &SlamConfig::jcbb_max_nodes)
       .def_readwrite("min_sightings", &SlamConfig::min_sightings)
       .def_readwrite("tentative_window", &SlamConfig::tentative_window)
+      .def_readwrite("merge_radius", &SlamConfig::merge_radius)
       .def_readwrite("local_map_features", &SlamConfig::local_map_features)
       .def_property(
           "join_association",

@@ -1,7 +1,6 @@
 #include "dcslam/config.hpp"
 
 #include <cmath>
-#include <cmath>
 #include <string>
 
 #include "dcslam/errors.hpp"
@@ -57,6 +56,8 @@ void SlamConfig::validate() const {
   require(jcbb_max_nodes >= 1,
           "jcbb_max_nodes: must be >= 1, got " + std::to_string(jcbb_max_nodes));
   require(min_sightings >= 1, "min_sightings: must be >= 1, got " + std::to_string(min_sightings));
+  require(std::isfinite(merge_radius) && merge_radius >= 0.0,
+          "merge_radius: must be finite and >= 0, got " + std::to_string(merge_radius));
   require(tentative_window >= 1,
           "tentative_window: must be >= 1, got " + std::to_string(tentative_window));
   require(local_map_features >= 1,

@@ -167,6 +167,7 @@ void DCSlam::close_local_map() {
     // Ids of the tentative features the local map removed as expired resolve to -1 from now on.
     std::lock_guard<std::mutex> lock(mutex_);
     for (std::int64_t id : local_->removed_ids()) merged_into_[id] = -1;
+    for (const auto& [from, to] : local_->merged_ids()) merged_into_[from] = to;
   }
   auto node = std::make_shared<Node>();
   node->map = compact_copy(local_->map());

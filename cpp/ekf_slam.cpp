@@ -5,7 +5,9 @@
 
 #include <Eigen/Cholesky>
 
+#include "dcslam/chi_square.hpp"
 #include "dcslam/errors.hpp"
+#include "dcslam/feature_merging.hpp"
 #include "dcslam/input_checks.hpp"
 #include "dcslam/observation.hpp"
 
@@ -31,6 +33,7 @@ Matrix symmetric_part(const Matrix& A) {
 EkfSlam::EkfSlam(const SlamConfig& config) : config_(config) {
   config_.validate();
   if (config_.association != Association::Known) association_.emplace(config_);
+  merge_gate_ = chi2_quantile(2, config_.gate_confidence);
 }
 
 bool EkfSlam::tentative_policy() const {
@@ -44,19 +47,96 @@ void EkfSlam::remove_tentative(Expired expired) {
   for (Index k = map_.num_features() - 1; k >= 0; --k) {
     const Track& track = tracks_[static_cast<std::size_t>(k)];
     if (track.sightings >= config_.min_sightings || !expired(track)) continue;
-    const std::int64_t id = map_.ids()[static_cast<std::size_t>(k)];
-    // Deleting the rows and columns of a Gaussian's component is its exact marginal.
-    const Index moved_from = map_.swap_remove_feature(k);
-    index_of_id_.erase(id);
-    removed_ids_.insert(id);
-    if (moved_from >= 0) {
-      tracks_[static_cast<std::size_t>(k)] = tracks_[static_cast<std::size_t>(moved_from)];
-      index_of_id_[map_.ids()[static_cast<std::size_t>(k)]] = k;
-    }
-    tracks_.pop_back();
-    association_->feature_swap_removed(k, moved_from);
+    removed_ids_.insert(map_.ids()[static_cast<std::size_t>(k)]);
+    remove_feature(k);
     ++stats_.counters["tentative_removed"];
   }
+}
+
+EkfSlam::Index EkfSlam::remove_feature(Index k) {
+  const std::int64_t id = map_.ids()[static_cast<std::size_t>(k)];
+  // Deleting the rows and columns of a Gaussian's component is its exact marginal.
+  const Index moved_from = map_.swap_remove_feature(k);
+  index_of_id_.erase(id);
+  if (moved_from >= 0) {
+    tracks_[static_cast<std::size_t>(k)] = std::move(tracks_[static_cast<std::size_t>(moved_from)]);
+    index_of_id_[map_.ids()[static_cast<std::size_t>(k)]] = k;
+  }
+  tracks_.pop_back();
+  association_->feature_swap_removed(k, moved_from);
+  return moved_from;
+}
+
+bool EkfSlam::seen_together(Index a, Index b) const {
+  const auto listed = [this](Index k, std::int64_t id) {
+    const auto& ids = tracks_[static_cast<std::size_t>(k)].seen_with;
+    return std::find(ids.begin(), ids.end(), id) != ids.end();
+  };
+  return listed(a, map_.ids()[static_cast<std::size_t>(b)]) || listed(b, map_.ids()[static_cast<std::size_t>(a)]);
+}
+
+void EkfSlam::record_seen_together(const std::vector<Index>& touched) {
+  const double radius_sq = config_.merge_radius * config_.merge_radius;
+  for (std::size_t p = 0; p < touched.size(); ++p) {
+    for (std::size_t q = p + 1; q < touched.size(); ++q) {
+      const Index a = touched[p], b = touched[q];
+      if (a == b || (map_.feature(a) - map_.feature(b)).squaredNorm() > radius_sq || seen_together(a, b)) continue;
+      tracks_[static_cast<std::size_t>(a)].seen_with.push_back(map_.ids()[static_cast<std::size_t>(b)]);
+    }
+  }
+}
+
+// A duplicate is found by the test a join applies to a pair of its two maps: f_a - f_b
+// compatible with 0 at gate_confidence. Within one map two more conditions keep distinct
+// landmarks apart: the two were never paired in one scan (distinct landmarks in view together
+// almost always are), and each is the other's only compatible feature (no ambiguity to
+// resolve, which is what a joint test would be for).
+EkfSlam::Index EkfSlam::merge_partner(Index k) const {
+  const double radius_sq = config_.merge_radius * config_.merge_radius;
+  const Vec2 position = map_.feature(k);
+  Index partner = -1;
+  for (Index j = 0; j < map_.num_features(); ++j) {
+    if (j == k || (map_.feature(j) - position).squaredNorm() > radius_sq) continue;
+    if (feature_difference_distance_sq(map_, k, j) > merge_gate_ || seen_together(k, j)) continue;
+    if (partner >= 0) return -1;
+    partner = j;
+  }
+  return partner;
+}
+
+void EkfSlam::merge_duplicates(const std::vector<Index>& touched) {
+  if (!association_ || config_.merge_radius <= 0.0) return;
+  std::vector<std::int64_t> touched_ids;
+  for (Index k : touched) touched_ids.push_back(map_.ids()[static_cast<std::size_t>(k)]);
+  bool merged = false;
+  for (std::int64_t id : touched_ids) {
+    const auto found = index_of_id_.find(id);
+    if (found == index_of_id_.end()) continue;
+    const Index k = found->second;
+    const Index partner = merge_partner(k);
+    if (partner < 0 || merge_partner(partner) != k) continue;
+    // The older feature stays: its id is the one already returned for most measurements.
+    const auto older = [this](Index a, Index b) {
+      const Track& ta = tracks_[static_cast<std::size_t>(a)];
+      const Track& tb = tracks_[static_cast<std::size_t>(b)];
+      return std::make_pair(ta.first_seen_step, map_.ids()[static_cast<std::size_t>(a)]) <
+             std::make_pair(tb.first_seen_step, map_.ids()[static_cast<std::size_t>(b)]);
+    };
+    const Index keep = older(k, partner) ? k : partner;
+    const Index drop = keep == k ? partner : k;
+    if (!impose_equal_features(map_, keep, drop)) continue;
+    Track& kept = tracks_[static_cast<std::size_t>(keep)];
+    const Track& dropped = tracks_[static_cast<std::size_t>(drop)];
+    kept.sightings += dropped.sightings;
+    kept.first_seen_step = std::min(kept.first_seen_step, dropped.first_seen_step);
+    kept.last_seen_step = std::max(kept.last_seen_step, dropped.last_seen_step);
+    kept.seen_with.insert(kept.seen_with.end(), dropped.seen_with.begin(), dropped.seen_with.end());
+    merged_into_[map_.ids()[static_cast<std::size_t>(drop)]] = map_.ids()[static_cast<std::size_t>(keep)];
+    remove_feature(drop);
+    ++stats_.counters["features_merged"];
+    merged = true;
+  }
+  if (merged) association_->map_updated(map_);
 }
 
 void EkfSlam::prune_tentative() {
@@ -129,6 +209,7 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
 
   // New features come from the robot as updated by the paired measurements (DESIGN.md §3).
   std::vector<std::int64_t> assigned(m, -1);
+  touched_.clear();
   StepStats& step = current_step();
   step.measurements += static_cast<int>(m);
   step.association_seconds += association_seconds;
@@ -139,19 +220,25 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
       Track& track = tracks_[static_cast<std::size_t>(decision)];
       ++track.sightings;
       track.last_seen_step = step_;
+      touched_.push_back(decision);
       ++step.paired;
     } else if (decision == kNewFeature) {
       const std::int64_t id = landmark_ids ? (*landmark_ids)[i] : next_fresh_id_++;
       const Index index =
           add_feature(z.row(static_cast<Index>(i)).transpose(), covariance_of(R, i), id);
       index_of_id_[id] = index;
-      tracks_.push_back(Track{1, step_, step_});
+      tracks_.push_back(Track{1, step_, step_, {}});
       if (association_) association_->feature_added(map_, index);
+      touched_.push_back(index);
       assigned[i] = id;
       ++step.new_features;
     } else {
       ++step.rejected;
     }
+  }
+  if (association_ && config_.merge_radius > 0.0) {
+    record_seen_together(touched_);
+    merge_duplicates(touched_);
   }
   ++stats_.counters["updates"];
   finish_timing(start);
@@ -303,6 +390,7 @@ Estimate EkfSlam::estimate() const { return to_estimate(map_, map_.P()); }
 std::vector<std::int64_t> EkfSlam::resolve(const std::vector<std::int64_t>& ids) const {
   std::vector<std::int64_t> resolved = ids;
   for (std::int64_t& id : resolved) {
+    for (auto it = merged_into_.find(id); it != merged_into_.end(); it = merged_into_.find(id)) id = it->second;
     if (removed_ids_.count(id) != 0) id = -1;
   }
   return resolved;

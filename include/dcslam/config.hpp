@@ -36,6 +36,11 @@ struct SlamConfig {
   // a tentative feature not seen for more than tentative_window steps is removed.
   int min_sightings = 2;
   int tentative_window = 5;
+  // "nn"/"jcbb": two features of one map are merged (the constraint f_a = f_b imposed as an
+  // exact update, then f_b marginalised) when they were never paired in one scan, lie within
+  // this distance (m), and each is the other's only feature compatible with it at
+  // gate_confidence (docs/data_association.md, "Duplicated features"). 0 = never merge.
+  double merge_radius = 2.0;
   int local_map_features = 30;
   JoinAssociation join_association = JoinAssociation::Rjc;
   int rjc_b = 4;

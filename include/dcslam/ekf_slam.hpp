@@ -35,8 +35,8 @@ class EkfSlam : public SlamFilter {
                                    const std::vector<std::int64_t>* landmark_ids) override;
   Estimate estimate() const override;
   Vec3 pose() const override { return map_.robot(); }
-  // EKF features never merge: the identity, except that ids of removed tentative features
-  // (and -1) give -1.
+  // The id of a feature merged into another as its duplicate gives the other's id (followed to
+  // the feature holding it now); ids of removed tentative features (and -1) give -1.
   std::vector<std::int64_t> resolve(const std::vector<std::int64_t>& ids) const override;
   const RunStats& stats() const override { return stats_; }
 
@@ -61,6 +61,8 @@ class EkfSlam : public SlamFilter {
   std::int64_t steps() const { return step_; }
   // Ids of the features removed so far by the spurious-measurement policy.
   const std::unordered_set<std::int64_t>& removed_ids() const { return removed_ids_; }
+  // Duplicated features merged so far: merged id -> the id of the feature it was merged into.
+  const std::unordered_map<std::int64_t, std::int64_t>& merged_ids() const { return merged_into_; }
 
   // Hands the map over (D&C closing a local map) and restarts this filter as a fresh one at
   // the origin of a new base frame. Stats and the fresh-id counter carry on.
@@ -89,6 +91,16 @@ class EkfSlam : public SlamFilter {
   // Removes the tentative features for which `expired` holds, in O(n) each.
   template <typename Expired>
   void remove_tentative(Expired expired);
+  // Deletes feature k's rows and columns and its track (the last feature moves into slot k);
+  // returns the slot the moved feature came from, or -1.
+  Index remove_feature(Index k);
+  // Duplicated features (docs/data_association.md): records which of the scan's features
+  // were seen together, then merges each of them with its duplicate, if it has one.
+  void record_seen_together(const std::vector<Index>& touched);
+  void merge_duplicates(const std::vector<Index>& touched);
+  // The one feature that feature k may be merged with (see SlamConfig::merge_radius), or -1.
+  Index merge_partner(Index k) const;
+  bool seen_together(Index a, Index b) const;
   void ensure_workspace(Index rows, Index measurement_rows);
   StepStats& current_step();
   void finish_timing(std::chrono::steady_clock::time_point start);
@@ -105,11 +117,17 @@ class EkfSlam : public SlamFilter {
     int sightings = 0;
     std::int64_t first_seen_step = 0;
     std::int64_t last_seen_step = 0;
+    // Ids of the features within merge_radius that were seen in one scan with this one: two
+    // measurements of one scan come from two landmarks, so those are never its duplicates.
+    std::vector<std::int64_t> seen_with;
   };
   std::vector<Track> tracks_;
   std::int64_t step_ = 0;  // predicts so far
   std::int64_t keep_until_step_ = -1;
   std::unordered_set<std::int64_t> removed_ids_;
+  std::unordered_map<std::int64_t, std::int64_t> merged_into_;
+  double merge_gate_ = 0.0;  // chi2(2, gate_confidence)
+  std::vector<Index> touched_;
 
   // Workspaces kept across steps so that the hot path does not allocate; they only grow.
   std::vector<Index> pairing_;

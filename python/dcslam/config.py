@@ -48,6 +48,11 @@ class SlamConfig:
         tentative_window: ``"nn"``/``"jcbb"``: a tentative feature not seen for more than
             this many steps (>= 1) is removed from the map (its id then resolves to -1).
             Never applied in ``"known"`` mode, where the caller's ids are trusted.
+        merge_radius: ``"nn"``/``"jcbb"``: two features of one map that were never paired
+            in the same scan, lie within this distance (m) and are each other's only
+            compatible feature at ``gate_confidence`` are merged into the older one (its
+            id is what :meth:`resolve` then returns for both). 2.0 by default; 0 never
+            merges (docs/data_association.md, "Duplicated features").
         local_map_features: D&C closes a local map when it holds this many features.
         join_association: association at D&C joins: ``"rjc"``, ``"jcbb"`` or ``"known"``.
         rjc_b, rjc_p_good, rjc_p_fail: RJC (Paz et al. 2007, Alg. 3) parameters.
@@ -77,6 +82,7 @@ class SlamConfig:
     jcbb_max_nodes: int = 20000
     min_sightings: int = 2
     tentative_window: int = 5
+    merge_radius: float = 2.0
     local_map_features: int = 30
     join_association: str = "rjc"
     rjc_b: int = 4
