@@ -11,6 +11,14 @@ namespace dcslam {
 
 namespace {
 
+// The local maps' EKF counters that DCSlam's stats add up over all local maps.
+constexpr const char* kLocalCounters[] = {"features_merged", "tentative_removed", "jcbb_nodes", "jcbb_bound_hits"};
+
+double counter(const RunStats& stats, const char* name) {
+  const auto found = stats.counters.find(name);
+  return found == stats.counters.end() ? 0.0 : found->second;
+}
+
 using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point start) {
@@ -168,6 +176,7 @@ void DCSlam::close_local_map() {
     std::lock_guard<std::mutex> lock(mutex_);
     for (std::int64_t id : local_->removed_ids()) merged_into_[id] = -1;
     for (const auto& [from, to] : local_->merged_ids()) merged_into_[from] = to;
+    for (const char* name : kLocalCounters) closed_maps_counters_[name] += counter(local_->stats(), name);
   }
   auto node = std::make_shared<Node>();
   node->map = compact_copy(local_->map());
@@ -469,6 +478,10 @@ const RunStats& DCSlam::stats() const {
   stats_.counters["joins_created"] = static_cast<double>(events_.size());
   stats_.counters["joins_finished"] = static_cast<double>(finished);
   stats_.counters["stack_depth"] = static_cast<double>(stack_.size());
+  for (const char* name : kLocalCounters) {
+    const auto closed = closed_maps_counters_.find(name);
+    stats_.counters[name] = counter(local_->stats(), name) + (closed == closed_maps_counters_.end() ? 0.0 : closed->second);
+  }
   return stats_;
 }
 

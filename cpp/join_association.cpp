@@ -30,7 +30,8 @@ double candidate_confidence(double gate_confidence) { return 1.0 - 0.1 * (1.0 - 
 
 }  // namespace
 
-constexpr int kJcbbFallbackOverlap = 30;
+// Interpretation-tree nodes of the JCBB that decides when every RJC try failed.
+constexpr std::int64_t kJcbbFallbackNodes = 20000;
 
 Vec2 JoinPairingModel::innovation(const Pairing& p) const {
   return frame_.moved_second_feature(p.measurement) - frame_.first_feature(p.feature);
@@ -125,8 +126,9 @@ std::int64_t JoinAssociator::candidates_of_next() {
   hash_.reset();
   // RJC is for large overlaps. On a small one, JCBB with the star node is exact and cheap;
   // and where every RJC try fails (no b-sample of the overlap was all-good: on real data far
-  // fewer than p_good of the overlap features have a partner), JCBB decides instead, while
-  // the overlap is small enough for its O(k^3) hypothesis path (kJcbbFallbackOverlap).
+  // fewer than p_good of the overlap features have a partner, and on a revisit whose maps
+  // overlap widely the second map would otherwise be added whole, every landmark twice), a
+  // node-bounded JCBB decides instead.
   const bool small_overlap = result_.overlap <= 3 * options_.rjc_b;
   if (options_.association == JoinAssociation::Rjc && !small_overlap) {
     RjcOptions rjc_options;
@@ -150,7 +152,7 @@ std::int64_t JoinAssociator::advance_rjc(std::int64_t budget) {
   if (!rjc_->done()) return spent;
   const RjcResult& rjc_result = rjc_->result();
   result_.tries = rjc_result.tries;
-  if (rjc_result.pairings == 0 && result_.overlap <= kJcbbFallbackOverlap) {
+  if (rjc_result.pairings == 0) {
     stage_ = Stage::Jcbb;
   } else {
     finish(rjc_result.feature_of);
@@ -158,11 +160,13 @@ std::int64_t JoinAssociator::advance_rjc(std::int64_t budget) {
   return spent;
 }
 
-// JCBB over the whole overlap in one step: bounded by kJcbbFallbackOverlap or a small overlap
-// under RJC; in "jcbb" mode by its node bound only.
+// JCBB over the whole overlap in one step: on a small overlap, or where every RJC try failed
+// (then with RJC's node bound, so the fallback stays bounded whatever the overlap); in "jcbb"
+// mode by its own node bound only.
 std::int64_t JoinAssociator::run_jcbb() {
   JcbbOptions jcbb_options;
   jcbb_options.confidence = options_.gate_confidence;
+  if (options_.association == JoinAssociation::Rjc) jcbb_options.max_nodes = kJcbbFallbackNodes;
   const JcbbResult jcbb_result = jcbb(candidates_, model_, jcbb_options);
   finish(jcbb_result.feature_of);
   std::int64_t candidate_count = 0;

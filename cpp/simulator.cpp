@@ -119,6 +119,13 @@ std::vector<Segment> trajectory_pattern(const SimulationConfig& config) {
       const int side = config.side_steps.value_or(std::max(1, steps / 4));
       return {{side, kPi / 2}};
     }
+    case Trajectory::LoopBothWays: {
+      // A lap turning left, a U-turn at the start, a lap back turning right, a U-turn: every
+      // place is seen again from the other direction.
+      const int side = config.side_steps.value_or(std::max(1, steps / 8));
+      return {{side, kPi / 2},  {side, kPi / 2},  {side, kPi / 2},  {side, kPi},
+              {side, -kPi / 2}, {side, -kPi / 2}, {side, -kPi / 2}, {side, kPi}};
+    }
     case Trajectory::LawnMowing: {
       // Lanes of length s and spacing d: about steps / (s + d) lanes spanning steps d / (s + d)
       // across, which equals s (a square region) for s ~ sqrt(steps d).
@@ -312,16 +319,18 @@ struct Measurement {
 Trajectory parse_trajectory(const std::string& name, const char* field) {
   if (name == "straight") return Trajectory::Straight;
   if (name == "loop") return Trajectory::Loop;
+  if (name == "loop_both_ways") return Trajectory::LoopBothWays;
   if (name == "lawn_mowing") return Trajectory::LawnMowing;
   if (name == "snail") return Trajectory::Snail;
   throw InvalidArgument(std::string(field) + ": unknown trajectory '" + name +
-                        "' (expected 'straight', 'loop', 'lawn_mowing' or 'snail')");
+                        "' (expected 'straight', 'loop', 'loop_both_ways', 'lawn_mowing' or 'snail')");
 }
 
 const char* to_string(Trajectory trajectory) {
   switch (trajectory) {
     case Trajectory::Straight: return "straight";
     case Trajectory::Loop: return "loop";
+    case Trajectory::LoopBothWays: return "loop_both_ways";
     case Trajectory::LawnMowing: return "lawn_mowing";
     case Trajectory::Snail: return "snail";
   }

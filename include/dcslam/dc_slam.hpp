@@ -17,7 +17,9 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <map>
 #include <memory>
+#include <string>
 #include <mutex>
 #include <thread>
 #include <unordered_map>
@@ -144,6 +146,8 @@ class DCSlam : public SlamFilter {
   std::deque<std::shared_ptr<JoinTask>> queue_;
   std::vector<JoinEvent> events_;
   IdAliases merged_into_;
+  // Counters of the closed local maps' filters (see kLocalCounters in dc_slam.cpp).
+  std::map<std::string, double> closed_maps_counters_;
   // The merges of the joins the last estimate() made on copies: resolve() follows them until
   // the next predict() or update(), so that ids resolve to that estimate's landmarks.
   mutable IdAliases estimate_aliases_;

@@ -45,7 +45,7 @@ JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& 
 // associate_maps() as resumable work, so that an amortized join spreads its association over
 // many steps: advance() does at least one step (the search radii and the spatial hash over
 // m1, the candidates of one m2 feature, one step of RJC's RjcSearch, or a whole JCBB, which
-// only runs on overlaps of at most kJcbbFallbackOverlap features or in "jcbb" mode) and
+// only runs on small overlaps, where every RJC try failed (node-bounded) or in "jcbb" mode) and
 // stops once `budget` units of eight multiply-adds are spent. The steps are the computation
 // associate_maps() does, in the same order, so the result is bitwise the same however the work
 // is sliced. `frame` must outlive the associator, which is neither copied nor moved.

@@ -26,7 +26,7 @@
 
 namespace dcslam {
 
-enum class Trajectory { Straight, Loop, LawnMowing, Snail };
+enum class Trajectory { Straight, Loop, LoopBothWays, LawnMowing, Snail };
 
 // Parses "straight" | "loop" | "lawn_mowing" | "snail"; throws InvalidArgument naming
 // `field` otherwise.
@@ -107,6 +107,8 @@ struct Simulation {
 //  - straight: forward along x;
 //  - loop: a square of side s = steps / 4 turning left, back at the start after 4 s steps
 //    (more steps run further laps);
+//  - loop_both_ways: the square (side s = steps / 8 unless set) once turning left, a U-turn
+//    at the start, once back turning right, a U-turn, and again;
 //  - lawn_mowing: lanes of s steps along ±x joined by lane_spacing_steps along +y, with s
 //    ~ sqrt(steps * spacing) so the swept region is roughly square;
 //  - snail: an inward square spiral turning left with sides s, s, s, s - d, s - d, s - 2d,

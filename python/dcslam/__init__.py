@@ -10,9 +10,9 @@ from ._core import InvalidArgument, ParseError
 from .config import SlamConfig
 from . import datasets
 from .consistency import chi2_threshold, consistency_index, nees
-from .simulation import Simulation, SimulationConfig, simulate
+from .simulation import REVISIT_SCENARIOS, Simulation, SimulationConfig, revisit_scenario, simulate
 from .slam import DCSlam, DCSlamStats, EkfSlam, Estimate, SlamStats
-from . import io, pipeline
+from . import evaluation, io, pipeline
 from .pipeline import PipelineResult, SlamPipeline, gps_alignment
 
 __all__ = [
@@ -30,6 +30,9 @@ __all__ = [
     "Simulation",
     "SimulationConfig",
     "simulate",
+    "REVISIT_SCENARIOS",
+    "revisit_scenario",
+    "evaluation",
     "nees",
     "chi2_threshold",
     "consistency_index",

@@ -246,7 +246,7 @@ def robot_scores(estimate, true_pose) -> RobotScores:
         position_error=float(np.hypot(*(robot[:2] - true_pose[:2]))),
         heading_error=float(abs(math.remainder(robot[2] - true_pose[2], 2 * math.pi))),
         nees=float(value),
-        consistent99=bool(value <= chi2_threshold(3, 0.99)),
+        consistent99=bool(value <= chi2_threshold(3, alpha=0.01)),
     )
 
 

@@ -32,9 +32,9 @@ import numpy as np
 from . import _core
 from .config import to_core_struct
 
-__all__ = ["SimulationConfig", "Simulation", "Step", "Steps", "simulate"]
+__all__ = ["SimulationConfig", "Simulation", "Step", "Steps", "simulate", "REVISIT_SCENARIOS", "revisit_scenario"]
 
-TRAJECTORIES = ("straight", "loop", "lawn_mowing", "snail")
+TRAJECTORIES = ("straight", "loop", "loop_both_ways", "lawn_mowing", "snail")
 
 
 @dataclasses.dataclass
@@ -45,13 +45,15 @@ class SimulationConfig:
     runs (or by :meth:`validate`); a bad one raises ``ValueError`` naming it.
 
     Attributes:
-        trajectory: ``"straight"``, ``"loop"``, ``"lawn_mowing"`` or ``"snail"``.
+        trajectory: ``"straight"``, ``"loop"``, ``"loop_both_ways"``, ``"lawn_mowing"`` or
+            ``"snail"``. ``"loop_both_ways"`` drives the square once turning left, turns
+            round at the start and drives it back turning right, and again.
         steps: number of motions; the run has ``steps + 1`` poses.
         seed: seeds the one ``mt19937_64`` all draws come from (same seed, same arrays).
         step_length: distance moved each step.
         side_steps: loop side, lawn lane length or snail outer side, in steps. ``None``
             chooses it from ``steps``: loop side ``steps // 4`` (the loop closes on its
-            start, further steps run more laps); lane length ``round(sqrt(steps *
+            start, further steps run more laps); ``loop_both_ways`` side ``steps // 8``; lane length ``round(sqrt(steps *
             lane_spacing_steps))`` (a roughly square swept region); the smallest snail whose
             spiral holds ``steps``.
         lane_spacing_steps: distance between lawn lanes and between snail rings, in steps
@@ -205,7 +207,8 @@ def simulate(trajectory: str, steps: int = 500, seed: int = 0, **overrides: Any)
     """Runs the simulator of Paz et al. 2007 (§III.B, Fig. 3) in one C++ call.
 
     Args:
-        trajectory: ``"straight"``, ``"loop"``, ``"lawn_mowing"`` or ``"snail"``.
+        trajectory: ``"straight"``, ``"loop"``, ``"loop_both_ways"``, ``"lawn_mowing"`` or
+            ``"snail"``.
         steps: number of motions (the run has ``steps + 1`` poses).
         seed: same seed, bitwise the same arrays.
         **overrides: any other :class:`SimulationConfig` field.
@@ -219,3 +222,33 @@ def simulate(trajectory: str, steps: int = 500, seed: int = 0, **overrides: Any)
         raise ValueError(f"simulate: unknown parameter(s) {', '.join(unknown)}")
     config = SimulationConfig(trajectory=trajectory, steps=steps, seed=seed, **overrides)
     return Simulation(config, _core.simulate(config._to_core()))
+
+
+# Scenes where the robot comes back to places it has mapped: the test that data association
+# without ids must pass (no landmark mapped twice). Each has 10 % clutter and the paper's
+# noise; the seed varies the field, the noise and the clutter.
+REVISIT_SCENARIOS = {
+    # A 10 m square driven four times.
+    "small_loop_laps": dict(trajectory="loop", steps=160, side_steps=10, clutter=0.1),
+    # A 15 m square driven left, then back turning right, twice.
+    "loop_both_ways": dict(trajectory="loop_both_ways", steps=240, side_steps=15, clutter=0.1),
+    # Lawn mowing with lanes 2 m apart, inside the 3 m sensor range: every lane overlaps two.
+    "lawn_overlap": dict(trajectory="lawn_mowing", steps=600, lane_spacing_steps=2, clutter=0.1),
+    # 1,600 steps around a 25 m square both ways: sixteen laps, every place seen again and again.
+    "long_revisits": dict(trajectory="loop_both_ways", steps=1600, side_steps=25, clutter=0.1),
+}
+
+
+def revisit_scenario(name: str, seed: int = 0, **overrides: Any) -> Simulation:
+    """One of :data:`REVISIT_SCENARIOS`, simulated with ``seed`` (``overrides`` change any
+    :class:`SimulationConfig` field).
+
+    Raises:
+        ValueError: an unknown scenario name.
+    """
+    if name not in REVISIT_SCENARIOS:
+        raise ValueError(f"revisit_scenario: unknown scenario {name!r} (expected one of {', '.join(REVISIT_SCENARIOS)})")
+    parameters = {**REVISIT_SCENARIOS[name], **overrides}
+    trajectory = parameters.pop("trajectory")
+    steps = parameters.pop("steps")
+    return simulate(trajectory, steps=steps, seed=seed, **parameters)

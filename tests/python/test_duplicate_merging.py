@@ -1,0 +1,70 @@
+"""Duplicated features are merged (SlamConfig.merge_radius); landmarks seen together never are."""
+
+import numpy as np
+import pytest
+
+import dcslam
+from dcslam import evaluation
+
+
+def run(sim, filter_cls, **config):
+    slam = filter_cls(dcslam.SlamConfig(association="jcbb", **config))
+    returned = []
+    for step in sim.steps:
+        slam.predict(step.u, step.Q)
+        returned.append(slam.update(step.z, step.R))
+    estimate = slam.estimate()
+    return slam, estimate, evaluation.evaluate_run(slam, estimate, returned, sim), returned
+
+
+def test_two_close_landmarks_seen_together_stay_two():
+    # Two landmarks 0.3 m apart, measured together at every scan with a noise that makes their
+    # features compatible with each other (sigma 0.4 m): only "seen together" keeps them apart.
+    slam = dcslam.EkfSlam(dcslam.SlamConfig(observation="point", association="jcbb", min_sightings=1))
+    z = np.array([[2.0, 0.0], [2.0, 0.3]])
+    R = 0.16 * np.eye(2)
+    for _ in range(10):
+        slam.predict(np.zeros(3), 1e-6 * np.eye(3))
+        ids = slam.update(z, R)
+    estimate = slam.estimate()
+    assert len(estimate.landmarks) == 2
+    assert len(set(slam.resolve(ids).tolist())) == 2
+    assert slam.stats.counters.get("features_merged", 0) == 0
+
+
+@pytest.mark.parametrize("filter_cls", [dcslam.EkfSlam])
+def test_merging_removes_duplicates_without_wrong_merges(filter_cls):
+    # D&C is left out: its duplicates come from its joins (tools/duplicate_diagnosis.py), and
+    # merging inside local maps does not reduce them yet (BENCHMARKS.md, revisits).
+    sim = dcslam.revisit_scenario("lawn_overlap", seed=0)
+    _, _, before, _ = run(sim, filter_cls, merge_radius=0.0)
+    slam, estimate, after, returned = run(sim, filter_cls)
+    assert slam.stats.counters["features_merged"] > 0
+    assert after.association.duplicated_landmarks < before.association.duplicated_landmarks
+    assert after.association.pairwise_recall > before.association.pairwise_recall
+    assert after.association.pairwise_precision >= before.association.pairwise_precision - 0.002
+    # Every id the filter returned resolves to a feature of the final map, or to -1.
+    resolved = set(slam.resolve(np.concatenate(returned)).tolist())
+    assert resolved <= set(estimate.landmark_ids.tolist()) | {-1}
+
+
+def test_known_mode_never_merges():
+    sim = dcslam.simulate("loop", steps=80, seed=2)
+    slam = dcslam.EkfSlam(dcslam.SlamConfig(association="known"))
+    for step in sim.steps:
+        slam.predict(step.u, step.Q)
+        slam.update(step.z, step.R, step.true_ids)
+    assert slam.stats.counters.get("features_merged", 0) == 0
+
+
+def test_merge_radius_is_checked():
+    with pytest.raises(ValueError, match="merge_radius"):
+        dcslam.EkfSlam(dcslam.SlamConfig(merge_radius=-1.0))
+
+
+def test_dc_resolves_merged_ids_to_features_of_the_final_map():
+    sim = dcslam.revisit_scenario("small_loop_laps", seed=0)
+    slam, estimate, _, returned = run(sim, dcslam.DCSlam)
+    assert slam.stats.counters["features_merged"] > 0
+    resolved = set(slam.resolve(np.concatenate(returned)).tolist())
+    assert resolved <= set(estimate.landmark_ids.tolist()) | {-1}
