@@ -41,7 +41,10 @@ def parse_overrides(items):
     overrides = {}
     for item in items:
         name, _, value = item.partition("=")
-        overrides[name] = json.loads(value) if value[:1] in "-0123456789[{tf" else value
+        try:
+            overrides[name] = json.loads(value)
+        except json.JSONDecodeError:
+            overrides[name] = value  # an option string, e.g. join_association=jcbb
     return overrides
 
 

@@ -14,9 +14,9 @@ namespace {
 // The local maps' EKF counters that DCSlam's stats add up over all local maps.
 constexpr const char* kLocalCounters[] = {"features_merged", "tentative_removed", "jcbb_nodes", "jcbb_bound_hits"};
 
-double counter(const RunStats& stats, const char* name) {
-  const auto found = stats.counters.find(name);
-  return found == stats.counters.end() ? 0.0 : found->second;
+double counter(const std::map<std::string, double>& counters, const char* name) {
+  const auto found = counters.find(name);
+  return found == counters.end() ? 0.0 : found->second;
 }
 
 using Clock = std::chrono::steady_clock;
@@ -176,7 +176,7 @@ void DCSlam::close_local_map() {
     std::lock_guard<std::mutex> lock(mutex_);
     for (std::int64_t id : local_->removed_ids()) merged_into_[id] = -1;
     for (const auto& [from, to] : local_->merged_ids()) merged_into_[from] = to;
-    for (const char* name : kLocalCounters) closed_maps_counters_[name] += counter(local_->stats(), name);
+    for (const char* name : kLocalCounters) closed_maps_counters_[name] += counter(local_->stats().counters, name);
   }
   auto node = std::make_shared<Node>();
   node->map = compact_copy(local_->map());
@@ -465,7 +465,7 @@ std::vector<std::int64_t> DCSlam::resolve(const std::vector<std::int64_t>& ids) 
 std::int64_t DCSlam::resolve_one(std::int64_t id) const {
   // The real joins' merges first; the estimate's joins take the maps they left.
   for (const IdAliases* aliases : std::array<const IdAliases*, 2>{&merged_into_, &estimate_aliases_}) {
-    for (auto it = aliases->find(id); it != aliases->end(); it = aliases->find(id)) id = it->second;
+    id = follow_aliases(*aliases, id);
   }
   return id;
 }
@@ -479,8 +479,7 @@ const RunStats& DCSlam::stats() const {
   stats_.counters["joins_finished"] = static_cast<double>(finished);
   stats_.counters["stack_depth"] = static_cast<double>(stack_.size());
   for (const char* name : kLocalCounters) {
-    const auto closed = closed_maps_counters_.find(name);
-    stats_.counters[name] = counter(local_->stats(), name) + (closed == closed_maps_counters_.end() ? 0.0 : closed->second);
+    stats_.counters[name] = counter(local_->stats().counters, name) + counter(closed_maps_counters_, name);
   }
   return stats_;
 }

@@ -105,7 +105,6 @@ EkfSlam::Index EkfSlam::merge_partner(Index k) const {
 }
 
 void EkfSlam::merge_duplicates(const std::vector<Index>& touched) {
-  if (!association_ || config_.merge_radius <= 0.0) return;
   std::vector<std::int64_t> touched_ids;
   for (Index k : touched) touched_ids.push_back(map_.ids()[static_cast<std::size_t>(k)]);
   bool merged = false;
@@ -390,7 +389,7 @@ Estimate EkfSlam::estimate() const { return to_estimate(map_, map_.P()); }
 std::vector<std::int64_t> EkfSlam::resolve(const std::vector<std::int64_t>& ids) const {
   std::vector<std::int64_t> resolved = ids;
   for (std::int64_t& id : resolved) {
-    for (auto it = merged_into_.find(id); it != merged_into_.end(); it = merged_into_.find(id)) id = it->second;
+    id = follow_aliases(merged_into_, id);
     if (removed_ids_.count(id) != 0) id = -1;
   }
   return resolved;

@@ -44,7 +44,7 @@ def join_tree(slam, leaf_of_step: np.ndarray):
             second, first = stack.pop(), stack.pop()
             event = joins[next_join]
             if second[1] - first[0] + 1 != event["leaves"]:
-                break  # not the shape replayed here; stop rather than misreport
+                return spans  # not the shape replayed here: stop rather than misreport
             spans.append((first[0], second[1], event))
             stack.append((first[0], second[1]))
             next_join += 1

@@ -120,7 +120,6 @@ class DCSlam : public SlamFilter {
   // The join of two adjacent nodes, with the tentative features whose last chance it is.
   std::unique_ptr<MapJoin> make_join(const NodeMap& first, const NodeMap& second,
                                      const Node& left, const Node& right, int index) const;
-  using IdAliases = std::unordered_map<std::int64_t, std::int64_t>;  // merged id -> its feature, or -1
   // The map of `node`, computing pending joins on copies (never touching the real tasks); the
   // merges those joins make are added to `aliases`.
   NodeMap materialize(const std::shared_ptr<Node>& node, IdAliases& aliases) const;

@@ -62,7 +62,7 @@ class EkfSlam : public SlamFilter {
   // Ids of the features removed so far by the spurious-measurement policy.
   const std::unordered_set<std::int64_t>& removed_ids() const { return removed_ids_; }
   // Duplicated features merged so far: merged id -> the id of the feature it was merged into.
-  const std::unordered_map<std::int64_t, std::int64_t>& merged_ids() const { return merged_into_; }
+  const IdAliases& merged_ids() const { return merged_into_; }
 
   // Hands the map over (D&C closing a local map) and restarts this filter as a fresh one at
   // the origin of a new base frame. Stats and the fresh-id counter carry on.
@@ -95,7 +95,8 @@ class EkfSlam : public SlamFilter {
   // returns the slot the moved feature came from, or -1.
   Index remove_feature(Index k);
   // Duplicated features (docs/data_association.md): records which of the scan's features
-  // were seen together, then merges each of them with its duplicate, if it has one.
+  // were seen together, then merges each of them with its duplicate, if it has one. Only in
+  // modes "nn"/"jcbb" with merge_radius > 0 (update() checks).
   void record_seen_together(const std::vector<Index>& touched);
   void merge_duplicates(const std::vector<Index>& touched);
   // The one feature that feature k may be merged with (see SlamConfig::merge_radius), or -1.
@@ -125,7 +126,7 @@ class EkfSlam : public SlamFilter {
   std::int64_t step_ = 0;  // predicts so far
   std::int64_t keep_until_step_ = -1;
   std::unordered_set<std::int64_t> removed_ids_;
-  std::unordered_map<std::int64_t, std::int64_t> merged_into_;
+  IdAliases merged_into_;
   double merge_gate_ = 0.0;  // chi2(2, gate_confidence)
   std::vector<Index> touched_;
 

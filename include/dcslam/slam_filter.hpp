@@ -4,6 +4,7 @@
 #include <cstdint>
 #include <map>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include <Eigen/Core>
@@ -12,6 +13,15 @@
 #include "dcslam/geometry.hpp"
 
 namespace dcslam {
+
+// Merged feature id -> the id it was merged into (or -1: removed).
+using IdAliases = std::unordered_map<std::int64_t, std::int64_t>;
+
+// Follows `aliases` from `id` to an id that names no merged feature.
+inline std::int64_t follow_aliases(const IdAliases& aliases, std::int64_t id) {
+  for (auto it = aliases.find(id); it != aliases.end(); it = aliases.find(id)) id = it->second;
+  return id;
+}
 
 // Measurements of one scan: z is (m, 2), row-major so numpy arrays map without a copy.
 using MeasurementMatrix = Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>;

@@ -178,10 +178,8 @@ def association_scores(true_ids, feature_ids, min_measurements: int = 3) -> Asso
     strong = cells[1][cell_sizes >= 2]
     strong_landmarks, strong_counts = np.unique(strong, return_counts=True)
     per_landmark = np.zeros(len(scored), np.int64)
-    where = np.searchsorted(strong_landmarks, scored)
-    found = (where < len(strong_landmarks)) & (strong_landmarks[np.minimum(where, len(strong_landmarks) - 1)] == scored) \
-        if len(strong_landmarks) else np.zeros(len(scored), bool)
-    per_landmark[found] = strong_counts[where[found]]
+    found = np.isin(scored, strong_landmarks)
+    per_landmark[found] = strong_counts[np.searchsorted(strong_landmarks, scored[found])]
 
     return AssociationScores(
         pairwise_precision=true_positive / predicted_pairs if predicted_pairs else 1.0,
@@ -261,10 +259,10 @@ def evaluate_run(slam, estimate, returned_ids: Sequence[Any], simulation) -> Run
         returned_ids: what ``update()`` returned at each step.
         simulation: the :class:`~dcslam.Simulation` the run used (``true_ids``, ``poses``).
     """
+    steps_run = len(returned_ids)
     returned = _flat_ids(returned_ids, "returned_ids")
     final = np.asarray(slam.resolve(returned), dtype=np.int64)
     truth = np.asarray(simulation.true_ids, dtype=np.int64)[: len(final)]
-    steps_run = sum(1 for _ in returned_ids)
     return RunScores(
         association=association_scores(truth, final),
         robot=robot_scores(estimate, simulation.poses[steps_run]),
