@@ -174,8 +174,8 @@ void DCSlam::close_local_map() {
   {
     // Ids of the tentative features the local map removed as expired resolve to -1 from now on.
     std::lock_guard<std::mutex> lock(mutex_);
-    for (std::int64_t id : local_->removed_ids()) merged_into_[id] = -1;
-    for (const auto& [from, to] : local_->merged_ids()) merged_into_[from] = to;
+    for (std::int64_t id : local_->removed_ids()) add_alias(merged_into_, id, -1);
+    for (const auto& [from, to] : local_->merged_ids()) add_alias(merged_into_, from, to);
     for (const char* name : kLocalCounters) closed_maps_counters_[name] += counter(local_->stats().counters, name);
   }
   auto node = std::make_shared<Node>();
@@ -329,10 +329,8 @@ namespace {
 
 // What a join did to ids: each merged one now names the feature it joined; dropped ones, -1.
 void record_merges(const MapJoin& join, std::unordered_map<std::int64_t, std::int64_t>& aliases) {
-  for (const auto& [from, to] : join.merged_ids()) {
-    if (from != to) aliases[from] = to;
-  }
-  for (std::int64_t id : join.dropped_ids()) aliases[id] = -1;
+  for (const auto& [from, to] : join.merged_ids()) add_alias(aliases, from, to);
+  for (std::int64_t id : join.dropped_ids()) add_alias(aliases, id, -1);
 }
 
 }  // namespace

@@ -130,7 +130,7 @@ void EkfSlam::merge_duplicates(const std::vector<Index>& touched) {
     kept.first_seen_step = std::min(kept.first_seen_step, dropped.first_seen_step);
     kept.last_seen_step = std::max(kept.last_seen_step, dropped.last_seen_step);
     kept.seen_with.insert(kept.seen_with.end(), dropped.seen_with.begin(), dropped.seen_with.end());
-    merged_into_[map_.ids()[static_cast<std::size_t>(drop)]] = map_.ids()[static_cast<std::size_t>(keep)];
+    add_alias(merged_into_, map_.ids()[static_cast<std::size_t>(drop)], map_.ids()[static_cast<std::size_t>(keep)]);
     remove_feature(drop);
     ++stats_.counters["features_merged"];
     merged = true;

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <tuple>
+#include <unordered_map>
 
 #include <Eigen/Cholesky>
 
@@ -98,31 +100,67 @@ SequentialAcceptance::SequentialAcceptance(const std::vector<Pairing>& order, in
   cross_.resize(2 * k, 2);
 }
 
-std::int64_t SequentialAcceptance::step() {
-  const Pairing& pairing = order_[static_cast<std::size_t>(next_)];
+void SequentialAcceptance::condition(const Pairing& pairing, Vec2& innovation, Mat2& covariance) {
   const auto m = static_cast<Eigen::Index>(kept_.size());
+  if (cross_.rows() < 2 * m) cross_.conservativeResize(2 * m, 2);
   for (Eigen::Index c = 0; c < m; ++c) {
     cross_.middleRows<2>(2 * c) = model_.covariance(kept_[static_cast<std::size_t>(c)], pairing);
   }
   auto cross_kept = cross_.topRows(2 * m);
   lower_.topLeftCorner(2 * m, 2 * m).triangularView<Eigen::Lower>().solveInPlace(cross_kept);
-  const Vec2 innovation = model_.innovation(pairing) - cross_kept.transpose() * whitened_.head(2 * m);
-  const Mat2 covariance = model_.covariance(pairing, pairing) - cross_kept.transpose() * cross_kept;
-  const Eigen::LLT<Mat2> factor(covariance);
+  innovation = model_.innovation(pairing) - cross_kept.transpose() * whitened_.head(2 * m);
+  covariance = model_.covariance(pairing, pairing) - cross_kept.transpose() * cross_kept;
+}
+
+std::int64_t SequentialAcceptance::step() {
+  const Pairing& pairing = order_[static_cast<std::size_t>(next_)];
+  const auto m = static_cast<Eigen::Index>(kept_.size());
   const bool seed = next_ < seed_size_;
   ++next_;
   const std::int64_t work = kPairingCovarianceUnits * (m + 1) + static_cast<std::int64_t>(m) * m / 2;
+  Vec2 innovation;
+  Mat2 covariance;
+  condition(pairing, innovation, covariance);
+  const Eigen::LLT<Mat2> factor(covariance);
   if (factor.info() != Eigen::Success ||
       (!seed && factor.matrixL().solve(innovation).squaredNorm() > gate_)) {
     feature_of_[pairing.measurement] = kStar;
     ++removed_;
     return work;
   }
-  lower_.block(2 * m, 0, 2, 2 * m) = cross_kept.transpose();
+  lower_.block(2 * m, 0, 2, 2 * m) = cross_.topRows(2 * m).transpose();
   lower_.block<2, 2>(2 * m, 2 * m) = factor.matrixL();
   whitened_.segment<2>(2 * m) = factor.matrixL().solve(innovation);
   kept_.push_back(pairing);
   return work;
+}
+
+double SequentialAcceptance::conditional_distance_sq(const Pairing& pairing) {
+  Vec2 innovation;
+  Mat2 covariance;
+  condition(pairing, innovation, covariance);
+  const Eigen::LLT<Mat2> factor(covariance);
+  if (factor.info() != Eigen::Success) return std::numeric_limits<double>::infinity();
+  return factor.matrixL().solve(innovation).squaredNorm();
+}
+
+bool SequentialAcceptance::append(const Pairing& pairing) {
+  const auto m = static_cast<Eigen::Index>(kept_.size());
+  Vec2 innovation;
+  Mat2 covariance;
+  condition(pairing, innovation, covariance);
+  const Eigen::LLT<Mat2> factor(covariance);
+  if (factor.info() != Eigen::Success || factor.matrixL().solve(innovation).squaredNorm() > gate_) return false;
+  if (lower_.rows() < 2 * m + 2) {
+    lower_.conservativeResize(2 * m + 2, 2 * m + 2);
+    whitened_.conservativeResize(2 * m + 2);
+  }
+  lower_.block(2 * m, 0, 2, 2 * m) = cross_.topRows(2 * m).transpose();
+  lower_.block<2, 2>(2 * m, 2 * m) = factor.matrixL();
+  whitened_.segment<2>(2 * m) = factor.matrixL().solve(innovation);
+  kept_.push_back(pairing);
+  feature_of_[pairing.measurement] = pairing.feature;
+  return true;
 }
 
 double SequentialAcceptance::joint_distance_sq() const {
@@ -318,26 +356,23 @@ std::int64_t RjcSearch::advance(std::int64_t budget) {
         spent += sequential_->step();
         if (sequential_->done()) {
           result_.dropped = sequential_->removed();
-          const int kept = best_pairings_ - result_.dropped;
-          const double distance_sq = sequential_->joint_distance_sq();
-          if (kept == 0 || distance_sq <= chi2_quantile(2 * kept, options_.confidence)) {
-            // Usually the kept pairings pass the joint test as they are: the sequential
-            // factor already holds their D^2, and S need not be stacked and factored again.
-            result_.joint_distance_sq = distance_sq;
-            result_.pairings = kept;
-            stage_ = Stage::Done;
-          } else {
-            joint_.emplace(result_.feature_of, model_, options_.confidence, options_.work_unit);
-            stage_ = Stage::Joint;
-          }
+          completion_.clear();
+          next_completion_ = 0;
+          stage_ = Stage::Completion;
         }
+        break;
+      case Stage::Completion:
+        spent += completion_next();
+        break;
+      case Stage::CompletionAdd:
+        spent += completion_add_next();
         break;
       case Stage::Joint:
         spent += joint_->step();
         if (joint_->done()) {
           result_.dropped += joint_->removed();
           result_.joint_distance_sq = joint_->joint_distance_sq();
-          result_.pairings = best_pairings_ - result_.dropped;
+          result_.pairings = sequential_->kept() - joint_->removed();
           stage_ = Stage::Done;
         }
         break;
@@ -506,9 +541,102 @@ void RjcSearch::end_of_tries() {
     stage_ = Stage::Done;
   } else if (options_.verify) {
     sequential_.emplace(best_order_, options_.b, result_.feature_of, model_, gate_);
+    int features = 0;
+    for (const auto& list : candidates_) {
+      for (int feature : list) features = std::max(features, feature + 1);
+    }
+    feature_used_.assign(static_cast<std::size_t>(features), 0);
+    for (int feature : result_.feature_of) {
+      if (feature != kStar) feature_used_[static_cast<std::size_t>(feature)] = 1;
+    }
     stage_ = Stage::Sequential;
   } else {
     stage_ = Stage::Done;
+  }
+}
+
+// One overlap measurement left unpaired: its candidates that no kept pairing uses, each
+// conditioned on all the kept pairings, collected if they pass the gate.
+std::int64_t RjcSearch::completion_next() {
+  if (next_completion_ == overlap_.size()) {
+    begin_completion_adds();
+    return 1;
+  }
+  const int measurement = overlap_[next_completion_++];
+  if (result_.feature_of[static_cast<std::size_t>(measurement)] != kStar) return 1;
+  const auto k = static_cast<std::int64_t>(sequential_->kept());
+  std::int64_t work = 1;
+  for (int feature : candidates_[static_cast<std::size_t>(measurement)]) {
+    if (feature_used_[static_cast<std::size_t>(feature)]) continue;
+    const double distance_sq = sequential_->conditional_distance_sq(Pairing{measurement, feature});
+    work += kPairingCovarianceUnits * (k + 1) + k * k / 2;
+    if (distance_sq <= gate_) completion_.emplace_back(distance_sq, measurement, feature);
+  }
+  return work;
+}
+
+// Keeps the unambiguous candidates (see kCompletionMargin), nearest first.
+void RjcSearch::begin_completion_adds() {
+  std::sort(completion_.begin(), completion_.end());
+  // completion_ is sorted, so the first entry of a measurement or feature is its nearest.
+  std::unordered_map<int, double> nearest_of_measurement, nearest_of_feature;
+  std::unordered_map<int, double> runner_up_of_measurement, runner_up_of_feature;
+  const auto note = [](std::unordered_map<int, double>& nearest, std::unordered_map<int, double>& runner_up,
+                       int key, double distance_sq) {
+    if (nearest.emplace(key, distance_sq).second) return;
+    runner_up.emplace(key, distance_sq);
+  };
+  for (const auto& [distance_sq, measurement, feature] : completion_) {
+    note(nearest_of_measurement, runner_up_of_measurement, measurement, distance_sq);
+    note(nearest_of_feature, runner_up_of_feature, feature, distance_sq);
+  }
+  const auto unambiguous = [](const std::unordered_map<int, double>& nearest,
+                              const std::unordered_map<int, double>& runner_up, int key, double distance_sq) {
+    if (nearest.at(key) != distance_sq) return false;
+    const auto second = runner_up.find(key);
+    return second == runner_up.end() || second->second - distance_sq >= kCompletionMargin;
+  };
+  std::vector<std::tuple<double, int, int>> kept;
+  for (const auto& entry : completion_) {
+    const auto& [distance_sq, measurement, feature] = entry;
+    if (unambiguous(nearest_of_measurement, runner_up_of_measurement, measurement, distance_sq) &&
+        unambiguous(nearest_of_feature, runner_up_of_feature, feature, distance_sq)) {
+      kept.push_back(entry);
+    }
+  }
+  completion_ = std::move(kept);
+  next_completion_ = 0;
+  stage_ = Stage::CompletionAdd;
+}
+
+// Adds the next unambiguous candidate if it still passes the gate conditioned on all the
+// pairings kept so far, those the completion added included.
+std::int64_t RjcSearch::completion_add_next() {
+  if (next_completion_ == completion_.size()) {
+    end_of_verification();
+    return 1;
+  }
+  const auto [distance_sq, measurement, feature] = completion_[next_completion_++];
+  const auto k = static_cast<std::int64_t>(sequential_->kept());
+  if (sequential_->append(Pairing{measurement, feature})) {
+    feature_used_[static_cast<std::size_t>(feature)] = 1;
+    ++result_.completed;
+  }
+  return kPairingCovarianceUnits * (k + 1) + k * k / 2;
+}
+
+// The joint test of everything kept: usually passed as it is (the sequential factor already
+// holds the kept pairings' D^2, and S need not be stacked and factored again).
+void RjcSearch::end_of_verification() {
+  const int kept = sequential_->kept();
+  const double distance_sq = sequential_->joint_distance_sq();
+  if (kept == 0 || distance_sq <= chi2_quantile(2 * kept, options_.confidence)) {
+    result_.joint_distance_sq = distance_sq;
+    result_.pairings = kept;
+    stage_ = Stage::Done;
+  } else {
+    joint_.emplace(result_.feature_of, model_, options_.confidence, options_.work_unit);
+    stage_ = Stage::Joint;
   }
 }
 
@@ -538,8 +666,14 @@ std::int64_t RjcSearch::remaining_work() const {
       return static_cast<std::int64_t>(std::ceil(tries_left)) * try_cost() + verification;
     }
     case Stage::Sequential:
-      // With the joint stage, which only runs should the kept pairings fail the test.
-      return sequential_->remaining_work() + k * k * k / 3;
+      // With the completion (about one more pass) and the joint stage, which only runs should
+      // the kept pairings fail the test.
+      return 2 * sequential_->remaining_work() + k * k * k / 3;
+    case Stage::Completion:
+    case Stage::CompletionAdd: {
+      const std::size_t left = (stage_ == Stage::Completion ? overlap_.size() : completion_.size()) - next_completion_;
+      return static_cast<std::int64_t>(left) * (kPairingCovarianceUnits * (k + 1) + k * k / 2) + 1 + k * k * k / 3;
+    }
     case Stage::Joint:
       return joint_->remaining_work();
     case Stage::Done:

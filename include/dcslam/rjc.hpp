@@ -38,6 +38,7 @@ struct RjcResult {
   int overlap_size = 0;  // measurements with at least one candidate
   int tries = 0;
   int dropped = 0;  // pairings removed by the final verification
+  int completed = 0;  // pairings added by the completion against all kept pairings
   // D^2 of the final hypothesis; NaN when verify is off and the hypothesis came from the
   // randomized tries (computing it is the O(k^3) work that verify = false skips).
   double joint_distance_sq = 0.0;
@@ -63,6 +64,17 @@ struct RjcResult {
 // it grows holds the kept pairings' joint D^2 (chain rule); only if that fails the joint test
 // is the hypothesis made jointly compatible by enforce_joint_compatibility(). That costs
 // O(k^3) for k pairings, no more than the O(n^2 k) join update that consumes them.
+//
+// Between the two, with verify on, the overlap measurements left unpaired get a second
+// chance (the completion): each candidate is tested conditioned on all the kept pairings, not
+// on the seed alone. Conditioned on a few pairings the relative pose of the two maps is still
+// loose, so in a dense map a true pairing can fail its gate or lose to a neighbour; on all of
+// them only the features' own uncertainty is left. A candidate is added only if it is
+// unambiguous: the nearest of its measurement's and of its feature's conditional candidates,
+// each runner-up at least kCompletionMargin further in D^2 (a likelihood ratio of e^2), then
+// re-tested against the pairings added before it. O(c k^2) for c candidates.
+inline constexpr double kCompletionMargin = 4.0;
+
 RjcResult rjc(const CandidateLists& candidates, const PairingModel& model,
               const RjcOptions& options = RjcOptions());
 
@@ -93,8 +105,17 @@ class SequentialAcceptance {
   // D^2 of the pairings kept so far, in the order kept: the sum of their distances each
   // conditioned on those before it (the chain rule), so no joint factor is needed for it.
   double joint_distance_sq() const;
+  int kept() const { return static_cast<int>(kept_.size()); }
+  // After done(): D^2 of `pairing` conditioned on all the kept pairings (infinity if its
+  // conditional covariance is not positive definite), and adding it to them if it passes the
+  // gate. O(k^2) each.
+  double conditional_distance_sq(const Pairing& pairing);
+  bool append(const Pairing& pairing);
 
  private:
+  // nu_a and C_a of `pairing` conditioned on the kept pairings; leaves L^-1 C_Ka in cross_.
+  void condition(const Pairing& pairing, Vec2& innovation, Mat2& covariance);
+
   const std::vector<Pairing>& order_;
   int seed_size_;
   std::vector<int>& feature_of_;
@@ -162,12 +183,16 @@ class RjcSearch {
   const RjcResult& result() const { return result_; }
 
  private:
-  enum class Stage { Start, Seed, Conditional, CompleteTry, Sequential, Joint, Done };
+  enum class Stage { Start, Seed, Conditional, CompleteTry, Sequential, Completion, CompletionAdd, Joint, Done };
   std::int64_t start();
   std::int64_t seed();
   std::int64_t conditional_next();
   std::int64_t complete_try();
   void end_of_tries();
+  std::int64_t completion_next();
+  void begin_completion_adds();
+  std::int64_t completion_add_next();
+  void end_of_verification();
   std::int64_t try_cost() const;
 
   const CandidateLists& candidates_;
@@ -184,6 +209,7 @@ class RjcSearch {
   CandidateLists sample_candidates_;
   std::vector<int> feature_of_;
   std::vector<int> used_features_;
+  std::vector<char> feature_used_;  // per feature of m1, during the verification
   std::vector<Pairing> hypothesis_;
   std::vector<std::tuple<double, int, int>> conditional_;  // (distance^2, measurement, feature)
   Eigen::MatrixXd seed_covariance_;  // S of the seed, then its factor
@@ -196,6 +222,10 @@ class RjcSearch {
   std::vector<Pairing> order_, best_order_;  // pairings in the order the try accepted them
   double p_good_ = 0.0;
   double tries_wanted_ = 0.0;
+  // The completion: (D^2, measurement, feature) of the unpaired measurements' candidates
+  // conditioned on all kept pairings, and the next one to test or add.
+  std::vector<std::tuple<double, int, int>> completion_;
+  std::size_t next_completion_ = 0;
   std::optional<SequentialAcceptance> sequential_;
   std::optional<JointCompatibilityEnforcement> joint_;
 };

@@ -17,6 +17,16 @@ namespace dcslam {
 // Merged feature id -> the id it was merged into (or -1: removed).
 using IdAliases = std::unordered_map<std::int64_t, std::int64_t>;
 
+// Records that `from` now resolves to `to` (-1: removed). `to` names a live feature, so any
+// older alias of it is dropped: with user-given ids (known association) an id can be merged
+// away and come back, and a stale entry would otherwise close a cycle that
+// follow_aliases() never leaves.
+inline void add_alias(IdAliases& aliases, std::int64_t from, std::int64_t to) {
+  if (from == to) return;
+  aliases.erase(to);
+  aliases[from] = to;
+}
+
 // Follows `aliases` from `id` to an id that names no merged feature.
 inline std::int64_t follow_aliases(const IdAliases& aliases, std::int64_t id) {
   for (auto it = aliases.find(id); it != aliases.end(); it = aliases.find(id)) id = it->second;

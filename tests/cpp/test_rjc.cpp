@@ -310,6 +310,69 @@ TEST(Rjc, SequentialAcceptanceKeepsThePairingsCompatibleWithAllEarlierOnes) {
   EXPECT_EQ(feature_of[shifted.measurement], kStar);
 }
 
+// The completion's two primitives against the chain rule: a's distance conditioned on all
+// the kept pairings is D^2(K + a) - D^2(K); append() keeps a pairing only if it passes the gate.
+TEST(Rjc, CompletionTestsAPairingAgainstAllKeptOnes) {
+  const JoinProblem problem = grid_join(7, 0, 6, 3, 9);
+  std::vector<Pairing> order;
+  std::vector<Pairing> left_out;
+  for (std::size_t j = 0; j < problem.truth.size(); ++j) {
+    if (problem.truth[j] == kStar) continue;
+    (j % 5 == 2 ? left_out : order).push_back(Pairing{static_cast<int>(j), problem.truth[j]});
+  }
+  ASSERT_GE(left_out.size(), 2u);
+  std::vector<int> feature_of(problem.truth.size(), kStar);
+  for (const Pairing& pairing : order) feature_of[pairing.measurement] = pairing.feature;
+  const double gate = chi2_quantile(2, 0.99);
+  SequentialAcceptance acceptance(order, 4, feature_of, problem.model, gate);
+  while (!acceptance.done()) acceptance.step();
+  ASSERT_EQ(acceptance.removed(), 0);
+  for (const Pairing& pairing : left_out) {
+    std::vector<int> with = feature_of;
+    with[pairing.measurement] = pairing.feature;
+    const double expected = joint_distance_sq(with, problem.model) - joint_distance_sq(feature_of, problem.model);
+    EXPECT_NEAR(acceptance.conditional_distance_sq(pairing), expected, 1e-8 * (1.0 + expected));
+    ASSERT_LE(expected, gate);
+    EXPECT_TRUE(acceptance.append(pairing));
+    EXPECT_EQ(feature_of[pairing.measurement], pairing.feature);
+    EXPECT_NEAR(acceptance.joint_distance_sq(), joint_distance_sq(feature_of, problem.model),
+                1e-8 * joint_distance_sq(feature_of, problem.model));
+  }
+  EXPECT_EQ(acceptance.kept(), static_cast<int>(order.size() + left_out.size()));
+  // A spurious feature of the second map paired with a grid point: refused, nothing changes.
+  const int spurious = static_cast<int>(problem.truth.size()) - 1;
+  std::vector<int> with = feature_of;
+  with[spurious] = 5 * 6 + 0;
+  ASSERT_GT(joint_distance_sq(with, problem.model) - joint_distance_sq(feature_of, problem.model), gate);
+  const std::vector<int> before = feature_of;
+  EXPECT_FALSE(acceptance.append(Pairing{spurious, 5 * 6 + 0}));
+  EXPECT_EQ(feature_of, before);
+}
+
+// On other draws of the grid, with the completion: no wrong pairing, most true ones found,
+// the result jointly compatible and its D^2 the one recomputed from scratch.
+TEST(Rjc, WithTheCompletionEveryPairingIsTrueAndTheResultJointlyCompatible) {
+  int found = 0, true_pairs = 0;
+  for (std::uint64_t seed = 0; seed < 10; ++seed) {
+    const JoinProblem problem = grid_join(seed, 0, 6, 3, 9);
+    RjcOptions options;
+    options.seed = seed;
+    const RjcResult result = rjc(problem.candidates, problem.model, options);
+    for (std::size_t j = 0; j < result.feature_of.size(); ++j) {
+      if (result.feature_of[j] != kStar) {
+        EXPECT_EQ(result.feature_of[j], problem.truth[j]) << "seed " << seed;
+      }
+    }
+    found += result.pairings;
+    true_pairs += count_pairings(problem.truth);
+    EXPECT_EQ(result.pairings, count_pairings(result.feature_of));
+    EXPECT_LE(result.joint_distance_sq, chi2_quantile(2 * result.pairings, 0.99));
+    EXPECT_NEAR(result.joint_distance_sq, joint_distance_sq(result.feature_of, problem.model),
+                1e-8 * (1.0 + result.joint_distance_sq));
+  }
+  EXPECT_GE(found, true_pairs * 9 / 10);
+}
+
 TEST(Rjc, RejectsBadOptions) {
   const JoinProblem problem = grid_join(8, 0, 6, 3, 9);
   RjcOptions options;

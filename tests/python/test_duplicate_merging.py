@@ -68,3 +68,19 @@ def test_dc_resolves_merged_ids_to_features_of_the_final_map():
     assert slam.stats.counters["features_merged"] > 0
     resolved = set(slam.resolve(np.concatenate(returned)).tolist())
     assert resolved <= set(estimate.landmark_ids.tolist()) | {-1}
+
+
+def test_known_ids_with_rjc_joins_resolve_without_a_cycle():
+    # Known ids in the local maps, RJC at the joins: a join may merge landmark a into b and a
+    # later one b into a (an id can be merged away and measured again). resolve() used to
+    # follow that cycle forever; every id must now end at a feature of the map or at -1.
+    sim = dcslam.revisit_scenario("small_loop_laps", 0)
+    slam = dcslam.DCSlam(dcslam.SlamConfig(association="known", join_association="rjc"))
+    returned = []
+    for step in sim.steps:
+        slam.predict(step.u, step.Q)
+        returned.append(slam.update(step.z, step.R, step.true_ids))
+    estimate = slam.estimate()
+    resolved = slam.resolve(np.concatenate(returned))
+    live = set(estimate.landmark_ids.tolist()) | {-1}
+    assert set(resolved.tolist()) <= live
