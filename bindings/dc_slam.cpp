@@ -1,7 +1,11 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <memory>
+#include <string>
+
 #include "dcslam/dc_slam.hpp"
+#include "dcslam/errors.hpp"
 
 namespace py = pybind11;
 
@@ -37,6 +41,38 @@ void define_dc_slam(py::module_& m) {
            [](const DCSlam& slam) {
              py::list out;
              for (const JoinEvent& event : slam.joins()) out.append(join_event_dict(event));
+             return out;
+           })
+      .def("set_join_oracle",
+           [](DCSlam& slam, const std::vector<std::int64_t>& feature_ids,
+              const std::vector<std::int64_t>& landmark_ids, const std::string& mode) {
+             if (feature_ids.size() != landmark_ids.size()) {
+               throw InvalidArgument("set_join_oracle: feature_ids and landmark_ids differ in length");
+             }
+             auto oracle = std::make_shared<JoinOracle>();
+             if (mode == "truth") {
+               oracle->mode = JoinOracle::Mode::Truth;
+             } else if (mode == "among_candidates") {
+               oracle->mode = JoinOracle::Mode::AmongCandidates;
+             } else if (mode == "remove_wrong") {
+               oracle->mode = JoinOracle::Mode::RemoveWrong;
+             } else {
+               throw InvalidArgument("set_join_oracle: mode must be 'truth', 'among_candidates' or 'remove_wrong', got '" + mode + "'");
+             }
+             for (std::size_t k = 0; k < feature_ids.size(); ++k) oracle->landmark_of[feature_ids[k]] = landmark_ids[k];
+             slam.set_join_oracle(std::move(oracle));
+           },
+           py::arg("feature_ids"), py::arg("landmark_ids"), py::arg("mode"))
+      .def("join_pairings",
+           [](const DCSlam& slam) {
+             py::list out;
+             for (const JoinEvent& event : slam.joins()) {
+               py::dict record;
+               record["first_ids"] = event.pairing.first_ids;
+               record["second_ids"] = event.pairing.second_ids;
+               record["pairs"] = event.pairing.pairs;
+               out.append(record);
+             }
              return out;
            })
       .def("stack_shape", &DCSlam::stack_shape)

@@ -1,4 +1,5 @@
 #include "dcslam/dc_slam.hpp"
+#include "dcslam/errors.hpp"
 
 #include <algorithm>
 #include <array>
@@ -104,6 +105,11 @@ DCSlam::~DCSlam() {
   if (worker_.joinable()) worker_.join();
 }
 
+void DCSlam::set_join_oracle(std::shared_ptr<const JoinOracle> oracle) {
+  if (predictions_ > 0 || steps_ > 0) throw InvalidArgument("set_join_oracle: only before the first predict()");
+  join_oracle_ = std::move(oracle);
+}
+
 JoinOptions DCSlam::join_options(int index, std::int64_t first_robot_id) const {
   JoinOptions options;
   options.association = config_.join_association;
@@ -117,6 +123,7 @@ JoinOptions DCSlam::join_options(int index, std::int64_t first_robot_id) const {
   // fold): keeping R1 at every join keeps each boundary pose once.
   options.keep_first_robot = config_.keep_local_map_poses;
   options.first_robot_id = first_robot_id;
+  options.oracle = join_oracle_;
   // One reproducible stream per join, whatever the order in which joins are run.
   options.seed = config_.seed ^ (0x9E3779B97F4A7C15ULL * static_cast<std::uint64_t>(index + 1));
   return options;
@@ -343,6 +350,7 @@ void DCSlam::complete(JoinTask& task) {
   std::lock_guard<std::mutex> lock(mutex_);
   JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
   event.report = task.join->report();
+  event.pairing = task.join->pairing_record();
   event.step_finished = steps_;
   record_merges(*task.join, merged_into_);
   const std::shared_ptr<Node> result = task.result.lock();

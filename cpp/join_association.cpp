@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <unordered_map>
 
 #include <Eigen/Eigenvalues>
 
@@ -168,14 +169,50 @@ std::int64_t JoinAssociator::run_jcbb() {
   jcbb_options.confidence = options_.gate_confidence;
   if (options_.association == JoinAssociation::Rjc) jcbb_options.max_nodes = kJcbbFallbackNodes;
   const JcbbResult jcbb_result = jcbb(candidates_, model_, jcbb_options);
-  finish(jcbb_result.feature_of);
-  std::int64_t candidate_count = 0;
+  std::int64_t candidate_count = 0;  // before finish() releases the lists
   for (const auto& list : candidates_) candidate_count += static_cast<std::int64_t>(list.size());
+  finish(jcbb_result.feature_of);
   return 1 + kPairingCovarianceUnits *
                  (candidate_count + jcbb_result.nodes_expanded * std::max(1, jcbb_result.pairings));
 }
 
-void JoinAssociator::finish(const std::vector<int>& feature_of) {
+void JoinAssociator::apply_oracle(std::vector<int>& feature_of) const {
+  const JoinOracle& oracle = *options_.oracle;
+  const auto landmark = [&oracle](std::int64_t id) {
+    const auto found = oracle.landmark_of.find(id);
+    return found == oracle.landmark_of.end() ? std::int64_t{-1} : found->second;
+  };
+  std::unordered_map<std::int64_t, int> unused_of_landmark;
+  for (Index i = frame_.first().num_features() - 1; i >= 0; --i) {
+    const std::int64_t l = landmark(frame_.first().ids()[static_cast<std::size_t>(i)]);
+    if (l >= 0) unused_of_landmark[l] = static_cast<int>(i);  // the first of the landmark wins
+  }
+  for (std::size_t j = 0; j < feature_of.size(); ++j) {
+    int truth = kStar;
+    const auto found = unused_of_landmark.find(landmark(frame_.second().ids()[j]));
+    if (found != unused_of_landmark.end()) {
+      truth = found->second;
+      unused_of_landmark.erase(found);
+    }
+    switch (oracle.mode) {
+      case JoinOracle::Mode::Truth:
+        feature_of[j] = truth;
+        break;
+      case JoinOracle::Mode::AmongCandidates: {
+        const std::vector<int>& candidates = candidates_[j];
+        const bool candidate = std::find(candidates.begin(), candidates.end(), truth) != candidates.end();
+        feature_of[j] = candidate ? truth : kStar;
+        break;
+      }
+      case JoinOracle::Mode::RemoveWrong:
+        if (feature_of[j] != truth) feature_of[j] = kStar;
+        break;
+    }
+  }
+}
+
+void JoinAssociator::finish(std::vector<int> feature_of) {
+  if (options_.oracle) apply_oracle(feature_of);
   for (std::size_t j = 0; j < feature_of.size(); ++j) {
     const int i = feature_of[j];
     if (i != kStar) result_.pairs.emplace_back(i, static_cast<Index>(j));

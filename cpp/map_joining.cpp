@@ -387,9 +387,14 @@ void MapJoin::finish_association() {
   const GaussianMap& m2 = *second_;
   report_.pairings = static_cast<int>(pairs_.size());
   merged_ids_.clear();
+  pairing_record_.first_ids = m1.ids();
+  pairing_record_.second_ids = m2.ids();
+  pairing_record_.pairs.clear();
   for (const auto& [i, j] : pairs_) {
     merged_ids_.emplace_back(m2.ids()[static_cast<std::size_t>(j)],
                              m1.ids()[static_cast<std::size_t>(i)]);
+    pairing_record_.pairs.emplace_back(m1.ids()[static_cast<std::size_t>(i)],
+                                       m2.ids()[static_cast<std::size_t>(j)]);
   }
 
   // Tentative features left unmatched are dropped: deleting their rows and columns is their

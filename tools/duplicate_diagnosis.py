@@ -15,7 +15,13 @@ least two of its measurements), reports:
   says is one landmark; "incompatible" means the maps disagree about it by more than their
   covariances allow.
 
-Usage: python tools/duplicate_diagnosis.py SCENARIO [--seed 0] [--filter dc|ekf] [--list]
+With ``--joins`` (D&C), every real join's association is scored instead: each feature of the
+two maps is labelled with the landmark most of its own measurements came from, and the tool
+counts the second map's features that had a partner in the first ("pairable"), the pairs
+made, the correct and the wrong ones (and of the wrong, those whose true partner was there),
+and the pairable ones left unpaired.
+
+Usage: python tools/duplicate_diagnosis.py SCENARIO [--seed 0] [--filter dc|ekf] [--list] [--joins]
        (SCENARIO: a dcslam.REVISIT_SCENARIOS name or a trajectory, e.g. lawn_mowing)
 """
 
@@ -49,6 +55,27 @@ def join_tree(slam, leaf_of_step: np.ndarray):
             stack.append((first[0], second[1]))
             next_join += 1
     return spans
+
+
+def join_scores(slam, returned, truth):
+    """Per real join: sizes, pairable, paired, correct, wrong (true partner present), missed."""
+    features, landmarks = evaluation.feature_landmarks(truth, np.concatenate(returned))
+    label = dict(zip(features.tolist(), landmarks.tolist()))
+    rows = []
+    for event, record in zip(sorted(slam.stats.joins, key=lambda j: j["index"]), slam.join_pairings()):
+        first = collections.Counter(label.get(i, -1) for i in record["first_ids"].tolist())
+        paired = {int(j): int(i) for i, j in record["pairs"]}
+        pairable = [j for j in record["second_ids"].tolist() if label.get(j, -1) >= 0 and label.get(j, -1) in first]
+        correct = sum(1 for j, i in paired.items() if label.get(j, -1) >= 0 and label.get(j, -1) == label.get(i, -2))
+        wrong = len(paired) - correct
+        wrong_partner_there = sum(1 for j, i in paired.items()
+                                  if label.get(j, -1) >= 0 and label.get(j, -1) != label.get(i, -2)
+                                  and label.get(j, -1) in first)
+        rows.append(dict(index=event["index"], leaves=event["leaves"], first=len(record["first_ids"]),
+                         second=len(record["second_ids"]), overlap=event["overlap"], pairable=len(pairable),
+                         paired=len(paired), correct=correct, wrong=wrong, wrong_partner_there=wrong_partner_there,
+                         missed=sum(1 for j in pairable if j not in paired)))
+    return rows
 
 
 def diagnose(name: str, seed: int, filter_name: str):
@@ -105,7 +132,8 @@ def diagnose(name: str, seed: int, filter_name: str):
             distance = float(d @ np.linalg.solve(S, d))
         reports.append(dict(landmark=landmark, steps=(born[a], born[b]), leaves=(leaf_a, leaf_b), where=where,
                             distance_sq=distance, compatible=distance <= gate))
-    return scores, reports
+    joins = join_scores(slam, returned, truth) if filter_name == "dc" else []
+    return scores, reports, joins
 
 
 def main() -> None:
@@ -114,8 +142,17 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--filter", choices=("dc", "ekf"), default="dc")
     parser.add_argument("--list", action="store_true", help="one line per duplicated landmark")
+    parser.add_argument("--joins", action="store_true", help="score every D&C join's pairs against the truth")
     args = parser.parse_args()
-    scores, reports = diagnose(args.scenario, args.seed, args.filter)
+    scores, reports, joins = diagnose(args.scenario, args.seed, args.filter)
+    if args.joins:
+        keys = ("index", "leaves", "first", "second", "overlap", "pairable", "paired", "correct", "wrong",
+                "wrong_partner_there", "missed")
+        print(" ".join(f"{k:>8s}" if len(k) <= 8 else k for k in keys))
+        for row in joins:
+            print(" ".join(f"{row[k]:8d}" if len(k) <= 8 else f"{row[k]:{len(k)}d}" for k in keys))
+        totals = {k: sum(r[k] for r in joins) for k in ("pairable", "paired", "correct", "wrong", "missed")}
+        print("all joins: " + ", ".join(f"{k} {v}" for k, v in totals.items()))
     a = scores.association
     print(f"{args.scenario} seed {args.seed} {args.filter}: P {a.pairwise_precision:.3f} R {a.pairwise_recall:.3f} "
           f"features/landmark {a.features_per_landmark:.3f}, {len(reports)} duplicated landmarks")

@@ -38,6 +38,7 @@ struct JoinEvent {
   std::int64_t step_created = 0;
   std::int64_t step_finished = -1;  // -1 while pending
   JoinReport report;
+  JoinPairingRecord pairing;  // empty while pending
 };
 
 class DCSlam : public SlamFilter {
@@ -51,6 +52,9 @@ class DCSlam : public SlamFilter {
   std::vector<std::int64_t> update(const MeasurementsRef& z, const std::vector<Mat2>& R,
                                    const std::vector<std::int64_t>* landmark_ids) override;
   Estimate estimate() const override;
+  // A research instrument (JoinOracle in map_joining.hpp): every join, the real ones and the
+  // estimate's, corrects its association with the truth. Only before the first predict().
+  void set_join_oracle(std::shared_ptr<const JoinOracle> oracle);
   Vec3 pose() const override;
   std::vector<std::int64_t> resolve(const std::vector<std::int64_t>& ids) const override;
   const RunStats& stats() const override;
@@ -145,6 +149,7 @@ class DCSlam : public SlamFilter {
   std::deque<std::shared_ptr<JoinTask>> queue_;
   std::vector<JoinEvent> events_;
   IdAliases merged_into_;
+  std::shared_ptr<const JoinOracle> join_oracle_;
   // Counters of the closed local maps' filters (see kLocalCounters in dc_slam.cpp).
   std::map<std::string, double> closed_maps_counters_;
   // The merges of the joins the last estimate() made on copies: resolve() follows them until

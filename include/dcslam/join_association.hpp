@@ -72,7 +72,9 @@ class JoinAssociator {
   std::int64_t candidates_of_next();
   std::int64_t advance_rjc(std::int64_t budget);
   std::int64_t run_jcbb();
-  void finish(const std::vector<int>& feature_of);
+  void finish(std::vector<int> feature_of);
+  // JoinOracle: the decision corrected with the truth.
+  void apply_oracle(std::vector<int>& feature_of) const;
 
   const JoinFrame& frame_;
   JoinOptions options_;

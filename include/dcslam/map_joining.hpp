@@ -13,6 +13,7 @@
 // on a worker thread, with bitwise the same result whichever way it is run.
 #include <cstdint>
 #include <memory>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -22,6 +23,21 @@
 #include "dcslam/gaussian_map.hpp"
 
 namespace dcslam {
+
+// A research instrument, never set in a real run: the landmark each feature id stands for
+// (from a simulator; < 0 for clutter) and how a join's decision is corrected with it, to
+// measure how far the join association is from what its two maps allow
+// (tools/join_association_ceiling.py, docs/data_association.md). The oracle pairing: each
+// feature of m2, in order, with the first unused feature of m1 of its landmark.
+struct JoinOracle {
+  enum class Mode {
+    Truth,            // the oracle pairing, whatever the gates say
+    AmongCandidates,  // the oracle pairing where it is among the individually compatible candidates
+    RemoveWrong,      // the association's own pairs, less those the oracle pairing does not hold
+  };
+  Mode mode = Mode::Truth;
+  std::unordered_map<std::int64_t, std::int64_t> landmark_of;
+};
 
 struct JoinOptions {
   JoinAssociation association = JoinAssociation::Known;
@@ -44,6 +60,14 @@ struct JoinOptions {
   // local-map boundaries, DESIGN.md §4.5). Past poses the inputs hold are always kept.
   bool keep_first_robot = false;
   std::int64_t first_robot_id = -1;
+  std::shared_ptr<const JoinOracle> oracle;  // research only (JoinOracle); null in real runs
+};
+
+// What a join's association saw and decided, by feature id: for diagnosis against a truth
+// (tools/duplicate_diagnosis.py). O(n) ids a join.
+struct JoinPairingRecord {
+  std::vector<std::int64_t> first_ids, second_ids;              // features of m1 and m2
+  std::vector<std::pair<std::int64_t, std::int64_t>> pairs;     // (id in m1, id in m2)
 };
 
 struct JoinReport {
@@ -143,6 +167,8 @@ class MapJoin {
   // The joined map; valid once done(). Leaves the join empty.
   GaussianMap take_result();
   const JoinReport& report() const { return report_; }
+  // Valid once associated.
+  const JoinPairingRecord& pairing_record() const { return pairing_record_; }
   // (id in m2, id in m1) for every matched pair: the m2 feature merged into the m1 one.
   std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids() const;
   // Ids of the tentative features (of m1, then of m2) marginalised out of the result; known
@@ -201,6 +227,7 @@ class MapJoin {
   JoinOptions options_;
   Phase phase_ = Phase::Associate;
   JoinReport report_;
+  JoinPairingRecord pairing_record_;
   Pairs pairs_;
   std::vector<Eigen::Index> first_tentative_;
   std::vector<Eigen::Index> second_tentative_;

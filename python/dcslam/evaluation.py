@@ -45,6 +45,7 @@ __all__ = [
     "MajorityScores",
     "association_scores",
     "majority_scores",
+    "feature_landmarks",
     "robot_scores",
     "evaluate_run",
 ]
@@ -193,6 +194,27 @@ def association_scores(true_ids, feature_ids, min_measurements: int = 3) -> Asso
         clutter=int(np.sum(~of_landmark)),
         rejected=int(np.sum(~in_feature)),
     )
+
+
+def feature_landmarks(true_ids, feature_ids):
+    """The landmark each feature stands for: the true id most of its measurements carry.
+
+    Returns ``(features, landmarks)``, two int64 arrays over the distinct ids ``>= 0`` in
+    ``feature_ids`` (as ``update()`` returned them, before ``resolve()``), sorted by feature
+    id. Clutter votes too (``-1``), so a feature born of clutter gets ``-1``; a tie goes to a
+    landmark before clutter, then to the smaller id.
+    """
+    truth = _flat_ids(true_ids, "true_ids")
+    features = _flat_ids(feature_ids, "feature_ids")
+    if truth.shape != features.shape:
+        raise ValueError(f"evaluation: 'true_ids' has {truth.size} measurements, 'feature_ids' {features.size}")
+    keep = features >= 0
+    pairs, counts = np.unique(np.stack([features[keep], truth[keep]]), axis=1, return_counts=True)
+    order = np.lexsort((pairs[1], pairs[1] < 0, -counts, pairs[0]))  # per feature: best first
+    pairs = pairs[:, order]
+    first = np.ones(pairs.shape[1], dtype=bool)
+    first[1:] = pairs[0, 1:] != pairs[0, :-1]
+    return pairs[0, first].astype(np.int64), pairs[1, first].astype(np.int64)
 
 
 def majority_scores(true_ids, feature_ids) -> MajorityScores:

@@ -272,6 +272,43 @@ class DCSlam(SlamFilter):
         """Per-step timings and counts, join events and the stack; see :class:`DCSlamStats`."""
         return DCSlamStats(**self._core.stats, joins=self._core.joins(), stack=self._core.stack_shape())
 
+    def join_pairings(self) -> list:
+        """What each real join's association saw and decided, by feature id, in the order of
+        ``stats.joins``: dicts with ``first_ids`` and ``second_ids`` (int64 arrays, the two
+        maps' features) and ``pairs`` ((k, 2) int64 array of (id in the first map, id in the
+        second) matched). Empty arrays while a join is pending. Ids are those ``update()``
+        returned (before ``resolve()``), so a simulator's ids label them; see
+        ``tools/duplicate_diagnosis.py --joins``."""
+        records = []
+        for record in self._core.join_pairings():
+            pairs = np.asarray(record["pairs"], dtype=np.int64).reshape(-1, 2)
+            records.append(dict(first_ids=np.asarray(record["first_ids"], dtype=np.int64),
+                                second_ids=np.asarray(record["second_ids"], dtype=np.int64), pairs=pairs))
+        return records
+
+    def set_join_oracle(self, feature_ids, landmark_ids, mode: str = "truth") -> None:
+        """A research instrument, never for a real run: corrects every join's association with
+        the truth, to measure how far it is from what the joined maps allow.
+
+        ``feature_ids`` are ids ``update()`` returned and ``landmark_ids`` the landmark each
+        stands for (a simulator's ``true_ids``, e.g. by majority over the measurements a
+        previous run gave that id; < 0 for clutter). The local maps do not depend on the
+        joins, so a second run with the same seed returns the same ids. ``mode``:
+        ``"truth"`` pairs each feature of the second map with the first unused feature of its
+        landmark in the first map; ``"among_candidates"`` does so only where that feature is
+        among the individually compatible candidates; ``"remove_wrong"`` keeps the
+        association's own pairs less the wrong ones. Only before the first ``predict()``.
+        See ``tools/join_association_ceiling.py``."""
+        features = np.asarray(feature_ids)
+        landmarks = np.asarray(landmark_ids)
+        if features.ndim != 1 or landmarks.shape != features.shape:
+            raise ValueError(f"set_join_oracle: feature_ids and landmark_ids must be 1-D of one length, "
+                             f"got shapes {features.shape} and {landmarks.shape}")
+        for name, values in (("feature_ids", features), ("landmark_ids", landmarks)):
+            if values.size and not np.issubdtype(values.dtype, np.integer):
+                raise ValueError(f"set_join_oracle: {name} must be integers, got dtype {values.dtype}")
+        self._core.set_join_oracle(features.astype(np.int64).tolist(), landmarks.astype(np.int64).tolist(), mode)
+
     def finish_joins(self) -> None:
         """Completes every queued join now (waits for the worker in threaded mode)."""
         self._core.finish_joins()
