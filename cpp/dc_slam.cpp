@@ -1,10 +1,13 @@
 #include "dcslam/dc_slam.hpp"
 #include "dcslam/errors.hpp"
+#include "dcslam/chi_square.hpp"
+#include "dcslam/feature_merging.hpp"
 
 #include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <iterator>
 #include <limits>
 #include <unordered_set>
 
@@ -187,6 +190,10 @@ void DCSlam::close_local_map() {
   }
   auto node = std::make_shared<Node>();
   node->map = compact_copy(local_->map());
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (std::int64_t id : node->map->ids()) leaves_of_[id] = {closed_local_maps_};
+  }
   // Features seen once stay until the joins with the neighbouring local maps (the previous
   // one, for those first seen in this map's first steps; the next one, for those still
   // unexpired), and are kept only if matched there: the EKF's min_sightings rule across maps.
@@ -335,9 +342,35 @@ std::unique_ptr<MapJoin> DCSlam::make_join(const NodeMap& first, const NodeMap& 
 namespace {
 
 // What a join did to ids: each merged one now names the feature it joined; dropped ones, -1.
-void record_merges(const MapJoin& join, std::unordered_map<std::int64_t, std::int64_t>& aliases) {
-  for (const auto& [from, to] : join.merged_ids()) add_alias(aliases, from, to);
-  for (std::int64_t id : join.dropped_ids()) add_alias(aliases, id, -1);
+// A merged feature's leaves join those of the feature it was merged into.
+void merge_leaves(LeafSets& leaves, std::int64_t from, std::int64_t to) {
+  const auto source = leaves.find(from);
+  if (source == leaves.end()) return;
+  std::vector<std::int64_t>& target = leaves[to];
+  std::vector<std::int64_t> merged;
+  std::set_union(target.begin(), target.end(), source->second.begin(), source->second.end(),
+                 std::back_inserter(merged));
+  target = std::move(merged);
+  leaves.erase(from);
+}
+
+void record_merges(const MapJoin& join, IdAliases& aliases, LeafSets& leaves) {
+  for (const auto& [from, to] : join.merged_ids()) {
+    add_alias(aliases, from, to);
+    if (from != to) merge_leaves(leaves, from, to);
+  }
+  for (std::int64_t id : join.dropped_ids()) {
+    add_alias(aliases, id, -1);
+    leaves.erase(id);
+  }
+}
+
+bool disjoint(const std::vector<std::int64_t>& a, const std::vector<std::int64_t>& b) {
+  for (auto i = a.begin(), j = b.begin(); i != a.end() && j != b.end();) {
+    if (*i == *j) return false;
+    if (*i < *j) ++i; else ++j;
+  }
+  return true;
 }
 
 }  // namespace
@@ -352,7 +385,7 @@ void DCSlam::complete(JoinTask& task) {
   event.report = task.join->report();
   event.pairing = task.join->pairing_record();
   event.step_finished = steps_;
-  record_merges(*task.join, merged_into_);
+  record_merges(*task.join, merged_into_, leaves_of_);
   const std::shared_ptr<Node> result = task.result.lock();
   result->tentative = std::move(tentative);
   result->map = std::move(map);
@@ -395,7 +428,7 @@ void DCSlam::finish_joins() {
   }
 }
 
-DCSlam::NodeMap DCSlam::materialize(const std::shared_ptr<Node>& node, IdAliases& aliases) const {
+DCSlam::NodeMap DCSlam::materialize(const std::shared_ptr<Node>& node, IdAliases& aliases, LeafSets& leaves) const {
   std::shared_ptr<Node> left, right;
   int index = 0;
   {
@@ -406,35 +439,54 @@ DCSlam::NodeMap DCSlam::materialize(const std::shared_ptr<Node>& node, IdAliases
     index = node->task->index;
   }
   // Same inputs and options as the real join: the same result, computed on the side.
-  NodeMap first = materialize(left, aliases);
-  NodeMap second = materialize(right, aliases);
+  NodeMap first = materialize(left, aliases, leaves);
+  NodeMap second = materialize(right, aliases, leaves);
   const std::unique_ptr<MapJoin> join = make_join(first, second, *left, *right, index);
   join->finish();
-  record_merges(*join, aliases);
+  record_merges(*join, aliases, leaves);
   return NodeMap{std::make_shared<const GaussianMap>(join->take_result()),
                  joined_tentative(first.tentative, second.tentative, *join, left->first_leaf,
                                   right->first_leaf + right->leaves - 1)};
 }
 
+void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, LeafSets& leaves) const {
+  if (!(config_.merge_radius > 0.0) || config_.association == Association::Known) return;
+  const auto may_be_one = [&](Eigen::Index a, Eigen::Index b) {
+    const auto& ids = map.ids();
+    return disjoint(leaves[ids[static_cast<std::size_t>(a)]], leaves[ids[static_cast<std::size_t>(b)]]);
+  };
+  const auto merges =
+      merge_duplicate_features(map, config_.merge_radius, chi2_quantile(2, config_.gate_confidence), may_be_one);
+  for (const auto& [from, to] : merges) {
+    add_alias(aliases, from, to);
+    merge_leaves(leaves, from, to);
+  }
+}
+
 Estimate DCSlam::estimate() const {
   std::vector<std::shared_ptr<Node>> stack;
+  LeafSets leaves;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     stack = stack_;
+    leaves = leaves_of_;
   }
   auto joined = std::make_shared<GaussianMap>(*compact_copy(local_->map()));
+  for (std::int64_t id : joined->ids()) leaves[id] = {closed_local_maps_};
   // Join everything on the stack, top first, as Algorithm 2 does at the end of the run.
   // Tentative features all stay, as in the EKF's estimate: the maps after them may not have
   // had their chance to confirm them yet (and resolve() still points at them).
   IdAliases aliases;
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     const int index = -1 - static_cast<int>(it - stack.rbegin());
-    NodeMap first = materialize(*it, aliases);
+    NodeMap first = materialize(*it, aliases, leaves);
     MapJoin join(first.map, std::move(joined), join_options(index, (*it)->robot_id));
     join.finish();  // releases its inputs: at most the inputs and the result are alive
-    record_merges(join, aliases);
+    record_merges(join, aliases, leaves);
     joined = std::make_shared<GaussianMap>(join.take_result());
   }
+  // The duplicates the joins left, pairs no join could decide (docs/data_association.md).
+  merge_duplicates(*joined, aliases, leaves);
   {
     std::lock_guard<std::mutex> lock(mutex_);
     estimate_aliases_ = std::move(aliases);

@@ -92,16 +92,8 @@ void EkfSlam::record_seen_together(const std::vector<Index>& touched) {
 // almost always are), and each is the other's only compatible feature (no ambiguity to
 // resolve, which is what a joint test would be for).
 EkfSlam::Index EkfSlam::merge_partner(Index k) const {
-  const double radius_sq = config_.merge_radius * config_.merge_radius;
-  const Vec2 position = map_.feature(k);
-  Index partner = -1;
-  for (Index j = 0; j < map_.num_features(); ++j) {
-    if (j == k || (map_.feature(j) - position).squaredNorm() > radius_sq) continue;
-    if (feature_difference_distance_sq(map_, k, j) > merge_gate_ || seen_together(k, j)) continue;
-    if (partner >= 0) return -1;
-    partner = j;
-  }
-  return partner;
+  return dcslam::merge_partner(map_, k, config_.merge_radius, merge_gate_,
+                               [this](Index a, Index b) { return !seen_together(a, b); });
 }
 
 void EkfSlam::merge_duplicates(const std::vector<Index>& touched) {

@@ -32,6 +32,11 @@
 
 namespace dcslam {
 
+// Feature id -> the local maps (leaves, sorted) its measurements came from. Two features that
+// share a leaf are distinct landmarks (the local EKF kept them apart); D&C's duplicate merge
+// only considers features whose leaves are disjoint.
+using LeafSets = std::unordered_map<std::int64_t, std::vector<std::int64_t>>;
+
 struct JoinEvent {
   int index = 0;         // joins in creation order
   int leaves = 0;        // local maps in the joined map
@@ -126,7 +131,12 @@ class DCSlam : public SlamFilter {
                                      const Node& left, const Node& right, int index) const;
   // The map of `node`, computing pending joins on copies (never touching the real tasks); the
   // merges those joins make are added to `aliases`.
-  NodeMap materialize(const std::shared_ptr<Node>& node, IdAliases& aliases) const;
+  NodeMap materialize(const std::shared_ptr<Node>& node, IdAliases& aliases, LeafSets& leaves) const;
+  // Merges the duplicates the joins left in the estimate's `map` as the EKF merges its own
+  // (each the other's only compatible feature within merge_radius), with "from disjoint local
+  // maps" standing in for "never seen in one scan"; records the merges in `aliases` and
+  // `leaves`. Off with merge_radius 0 or known association.
+  void merge_duplicates(GaussianMap& map, IdAliases& aliases, LeafSets& leaves) const;
   // Follows merged_into_, then the last estimate()'s aliases while they are current.
   std::int64_t resolve_one(std::int64_t id) const;
   Vec3 node_robot(const Node& node) const;
@@ -149,6 +159,7 @@ class DCSlam : public SlamFilter {
   std::deque<std::shared_ptr<JoinTask>> queue_;
   std::vector<JoinEvent> events_;
   IdAliases merged_into_;
+  LeafSets leaves_of_;  // of the features of the closed local maps and of the joins done
   std::shared_ptr<const JoinOracle> join_oracle_;
   // Counters of the closed local maps' filters (see kLocalCounters in dc_slam.cpp).
   std::map<std::string, double> closed_maps_counters_;

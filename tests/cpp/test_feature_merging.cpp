@@ -1,6 +1,7 @@
 // impose_equal_features against the dense EKF update with the constraint written out as a
 // matrix H (K = P H' (H P H')^-1), and the distance against its definition.
 #include <random>
+#include <vector>
 
 #include <Eigen/Dense>
 #include <gtest/gtest.h>
@@ -72,6 +73,46 @@ TEST(FeatureMerging, FeaturesAlreadyOneAreLeftAlone) {
   EXPECT_TRUE(std::isinf(feature_difference_distance_sq(map, 0, 2)));
   EXPECT_FALSE(impose_equal_features(map, 0, 2));
   EXPECT_EQ(map.x(), x);
+}
+
+// Features of a map with independent position errors of sigma 0.05 m, at the given points.
+GaussianMap independent_map(const std::vector<Vec2>& points) {
+  GaussianMap map;
+  for (std::size_t k = 0; k < points.size(); ++k) map.append_feature(points[k], 10 + static_cast<int>(k));
+  map.P() = Eigen::MatrixXd::Identity(map.dim(), map.dim()) * 0.05 * 0.05;
+  return map;
+}
+
+// Two estimates of one landmark (ids 10 and 12) 0.05 m apart, a distinct landmark 1.5 m away,
+// and a third pair (13, 14) 0.05 m apart that may not be one (e.g. seen in one scan).
+TEST(FeatureMerging, MergesEveryMutuallyUniqueCompatiblePairAndNothingElse) {
+  GaussianMap map = independent_map({Vec2(0, 0), Vec2(1.5, 0), Vec2(0.05, 0), Vec2(5, 5), Vec2(5.05, 5)});
+  GaussianMap expected = map;
+  const double gate = 9.21;
+  const MayBeOneLandmark may_be_one = [&map](Eigen::Index a, Eigen::Index b) {
+    const auto ia = map.ids()[static_cast<std::size_t>(a)], ib = map.ids()[static_cast<std::size_t>(b)];
+    return !((ia == 13 && ib == 14) || (ia == 14 && ib == 13));
+  };
+  const auto merged = merge_duplicate_features(map, 2.0, gate, may_be_one);
+  ASSERT_EQ(merged.size(), 1u);
+  EXPECT_EQ(merged[0], std::make_pair(std::int64_t{12}, std::int64_t{10}));  // the older id stays
+  EXPECT_EQ(map.ids(), (std::vector<std::int64_t>{10, 11, 13, 14}));
+  // The merge is the noise-free update f_10 = f_12 (tested above), then f_12 marginalised.
+  ASSERT_TRUE(impose_equal_features(expected, 0, 2));
+  expected.remove_features({2});
+  EXPECT_LT((map.x() - expected.x()).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT((map.P() - expected.P()).cwiseAbs().maxCoeff(), 1e-12);
+}
+
+// A feature with two compatible partners is left alone: no ambiguity is resolved by merging.
+TEST(FeatureMerging, AnAmbiguousPairIsNotMerged) {
+  GaussianMap map = independent_map({Vec2(0, 0), Vec2(0.05, 0), Vec2(-0.05, 0)});
+  const auto merged = merge_duplicate_features(map, 2.0, 9.21, [](Eigen::Index, Eigen::Index) { return true; });
+  EXPECT_TRUE(merged.empty());
+  EXPECT_EQ(map.num_features(), 3);
+  // The partner search itself: none (ambiguous) for the middle one, none beyond the radius.
+  EXPECT_EQ(merge_partner(map, 0, 2.0, 9.21, [](Eigen::Index, Eigen::Index) { return true; }), -1);
+  EXPECT_EQ(merge_partner(map, 0, 0.01, 9.21, [](Eigen::Index, Eigen::Index) { return true; }), -1);
 }
 
 }  // namespace

@@ -84,3 +84,22 @@ def test_known_ids_with_rjc_joins_resolve_without_a_cycle():
     resolved = slam.resolve(np.concatenate(returned))
     live = set(estimate.landmark_ids.tolist()) | {-1}
     assert set(resolved.tolist()) <= live
+
+
+def test_dc_estimate_merges_the_duplicates_its_joins_left():
+    # estimate() merges features of disjoint local maps that are each other's only compatible
+    # feature (the EKF's rule; the mechanism is tested in C++, test_feature_merging.cpp). Seen
+    # as a user sees it: every id resolves to a feature of the final map, precision holds, and
+    # the map has fewer features per landmark than with merging off.
+    sim = dcslam.revisit_scenario("loop_both_ways", seed=0)
+    slam, estimate, after, returned = run(sim, dcslam.DCSlam)
+    raw = np.concatenate(returned)
+    truth = np.asarray(sim.true_ids)
+    final = slam.resolve(raw)
+    merged_features = {int(i) for i in raw if i >= 0} - set(estimate.landmark_ids.tolist())
+    assert len(merged_features) > 0
+    assert set(final.tolist()) <= set(estimate.landmark_ids.tolist()) | {-1}
+    # Every pair of measurements the final map puts in one feature: mostly of one landmark.
+    assert after.association.pairwise_precision > 0.96
+    _, _, without, _ = run(sim, dcslam.DCSlam, merge_radius=0.0)
+    assert after.association.features_per_landmark < without.association.features_per_landmark
