@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <unordered_map>
 
 #include <Eigen/Eigenvalues>
@@ -140,6 +141,10 @@ std::int64_t JoinAssociator::candidates_of_next() {
     rjc_options.seed = options_.seed;
     rjc_options.max_nodes_per_try = 5000;  // b = 4 seeds: a bounded search of 4 levels
     rjc_options.work_unit = options_.work_unit;
+    auto positions = std::make_shared<std::vector<Vec2>>();
+    positions->reserve(candidates_.size());
+    for (Index j = 0; j < frame_.second().num_features(); ++j) positions->push_back(frame_.second().feature(j));
+    rjc_options.positions = std::move(positions);
     rjc_.emplace(candidates_, model_, rjc_options);
     stage_ = Stage::Rjc;
   } else {

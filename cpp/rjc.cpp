@@ -352,6 +352,10 @@ std::int64_t RjcSearch::advance(std::int64_t budget) {
       case Stage::CompleteTry:
         spent += complete_try();
         break;
+      case Stage::VerifyTry:
+        spent += try_verification_->step();
+        if (try_verification_->done()) end_of_try();
+        break;
       case Stage::Sequential:
         spent += sequential_->step();
         if (sequential_->done()) {
@@ -427,21 +431,29 @@ std::int64_t RjcSearch::start() {
 // The next try's sample and its seed hypothesis (JCBB* over b measurements, bounded by
 // max_nodes_per_try), or the end of the tries.
 std::int64_t RjcSearch::seed() {
-  if (!(result_.tries < tries_wanted_ && result_.tries < options_.max_tries)) {
+  std::int64_t work = 0;
+  if (constellation_tries_end_ < 0 && !(result_.tries < tries_wanted_ && result_.tries < options_.max_tries)) {
+    if (options_.positions == nullptr || best_pairings_ >= kConstellationShare * result_.overlap_size) {
+      end_of_tries();
+      return 1;
+    }
+    constellation_tries_end_ = result_.tries + options_.max_tries;
+  }
+  if (constellation_tries_end_ >= 0 && result_.tries >= constellation_tries_end_) {
     end_of_tries();
     return 1;
   }
   const int b = options_.b;
   ++result_.tries;
-  // Partial Fisher–Yates: the first b slots of the pool become a uniform sample.
-  for (std::size_t k = 0; k < sample_.size(); ++k) {
-    std::swap(pool_[k], pool_[k + draw_below(rng_, pool_.size() - k)]);
-    sample_[k] = pool_[k];
-    sample_candidates_[k] = candidates_[static_cast<std::size_t>(pool_[k])];
+  if (constellation_tries_end_ >= 0) {
+    work += static_cast<std::int64_t>(overlap_.size());
+    if (!draw_constellation()) return work;
+  } else {
+    draw_uniform_sample();
   }
   const SampledModel sampled_model(model_, sample_);
   const JcbbResult seed = star_free_.solve(sample_candidates_, sampled_model);
-  const std::int64_t work = kPairingCovarianceUnits * (1 + seed.nodes_expanded) * b;
+  work += kPairingCovarianceUnits * (1 + seed.nodes_expanded) * b;
   if (seed.pairings < b) return work;
 
   std::fill(feature_of_.begin(), feature_of_.end(), kStar);
@@ -469,6 +481,33 @@ std::int64_t RjcSearch::seed() {
   next_overlap_ = 0;
   stage_ = Stage::Conditional;
   return work;
+}
+
+// Partial Fisher–Yates: the first b slots of the pool become a uniform sample.
+void RjcSearch::draw_uniform_sample() {
+  for (std::size_t k = 0; k < sample_.size(); ++k) {
+    std::swap(pool_[k], pool_[k + draw_below(rng_, pool_.size() - k)]);
+    sample_[k] = pool_[k];
+    sample_candidates_[k] = candidates_[static_cast<std::size_t>(pool_[k])];
+  }
+}
+
+// One measurement of the overlap, uniformly, and its b - 1 nearest ones in the overlap. O(|O|).
+bool RjcSearch::draw_constellation() {
+  if (overlap_.size() < sample_.size()) return false;
+  const int first = overlap_[draw_below(rng_, overlap_.size())];
+  const std::vector<Vec2>& positions = *options_.positions;
+  nearest_.clear();
+  for (int other : overlap_) {
+    if (other == first) continue;
+    nearest_.emplace_back((positions[static_cast<std::size_t>(other)] - positions[static_cast<std::size_t>(first)]).squaredNorm(), other);
+  }
+  const auto rest = static_cast<std::ptrdiff_t>(sample_.size() - 1);
+  std::partial_sort(nearest_.begin(), nearest_.begin() + rest, nearest_.end());
+  sample_[0] = first;
+  for (std::ptrdiff_t k = 0; k < rest; ++k) sample_[static_cast<std::size_t>(k + 1)] = nearest_[static_cast<std::size_t>(k)].second;
+  for (std::size_t k = 0; k < sample_.size(); ++k) sample_candidates_[k] = candidates_[static_cast<std::size_t>(sample_[k])];
+  return true;
 }
 
 // One overlap measurement not in the seed: each of its candidates (features not in the seed)
@@ -519,18 +558,37 @@ std::int64_t RjcSearch::complete_try() {
     ++pairings;
     score += distance_sq;
   }
-  if (pairings > best_pairings_ || (pairings == best_pairings_ && score < best_score_)) {
-    best_pairings_ = pairings;
-    best_score_ = score;
+  try_pairings_ = pairings;
+  try_score_ = score;
+  const auto c = static_cast<std::int64_t>(conditional_.size());
+  const std::int64_t work = 1 + c * (4 + static_cast<std::int64_t>(used_features_.size()) / 8) +
+                            static_cast<std::int64_t>(feature_of_.size()) / 8;
+  if (options_.verify && pairings > options_.b) {
+    // Scored once verified (see rjc()), a pairing per step like the final verification; the
+    // kept hypothesis is the try's own, which that verification re-tests the same way.
+    verified_scratch_ = feature_of_;
+    try_verification_.emplace(order_, options_.b, verified_scratch_, model_, gate_);
+    stage_ = Stage::VerifyTry;
+  } else {
+    end_of_try();
+  }
+  return work;
+}
+
+void RjcSearch::end_of_try() {
+  if (try_verification_) {
+    try_pairings_ -= try_verification_->removed();
+    try_verification_.reset();
+  }
+  if (try_pairings_ > best_pairings_ || (try_pairings_ == best_pairings_ && try_score_ < best_score_)) {
+    best_pairings_ = try_pairings_;
+    best_score_ = try_score_;
     result_.feature_of = feature_of_;
     best_order_ = order_;
   }
   p_good_ = std::max(p_good_, static_cast<double>(best_pairings_) / result_.overlap_size);
   tries_wanted_ = tries_needed(p_good_, options_.b, options_.p_fail);
   stage_ = Stage::Seed;
-  const auto c = static_cast<std::int64_t>(conditional_.size());
-  return 1 + c * (4 + static_cast<std::int64_t>(used_features_.size()) / 8) +
-         static_cast<std::int64_t>(feature_of_.size()) / 8;
 }
 
 void RjcSearch::end_of_tries() {
@@ -647,7 +705,10 @@ std::int64_t RjcSearch::try_cost() const {
     candidate_count += static_cast<std::int64_t>(candidates_[static_cast<std::size_t>(measurement)].size());
   }
   const std::int64_t b = options_.b;
-  return candidate_count * (kPairingCovarianceUnits * (b + 1) + 4 * b) + kPairingCovarianceUnits * b * b;
+  const auto k = static_cast<std::int64_t>(overlap_.size());
+  const std::int64_t verification = options_.verify ? kPairingCovarianceUnits * k * k / 2 + k * k * k / 6 : 0;
+  return candidate_count * (kPairingCovarianceUnits * (b + 1) + 4 * b) + kPairingCovarianceUnits * b * b +
+         verification;
 }
 
 // Before the tries end, the tries still wanted plus a verification of the whole overlap; then
@@ -660,9 +721,12 @@ std::int64_t RjcSearch::remaining_work() const {
       return static_cast<std::int64_t>(candidates_.size());
     case Stage::Seed:
     case Stage::Conditional:
+    case Stage::VerifyTry:
     case Stage::CompleteTry: {
       const double tries_left =
-          std::max(0.0, std::min(tries_wanted_, static_cast<double>(options_.max_tries)) - result_.tries);
+          constellation_tries_end_ >= 0
+              ? static_cast<double>(constellation_tries_end_ - result_.tries)
+              : std::max(0.0, std::min(tries_wanted_, static_cast<double>(options_.max_tries)) - result_.tries);
       return static_cast<std::int64_t>(std::ceil(tries_left)) * try_cost() + verification;
     }
     case Stage::Sequential:

@@ -7,6 +7,8 @@
 #include <optional>
 #include <random>
 #include <tuple>
+#include <memory>
+#include <utility>
 #include <vector>
 
 #include "dcslam/blocked_cholesky.hpp"
@@ -30,7 +32,16 @@ struct RjcOptions {
   // Multiply-adds that bound one step of the resumable search (RjcSearch) where its sizes
   // allow; the steps' boundaries never change the result.
   std::int64_t work_unit = std::int64_t{1} << 18;
+  // Optional: per measurement, its position in any one frame (a join's second map). With it,
+  // when the uniform tries verify fewer than kConstellationShare of the overlap, max_tries
+  // more tries draw local constellations (see rjc()).
+  std::shared_ptr<const std::vector<Vec2>> positions;
 };
+
+// Share of the overlap that the best uniform try must verify for RJC to stop there when
+// positions are given. A loop closure at large uncertainty in a dense map verifies much less
+// (23 true of 126 at the README loop's last fold), a revisit of the previous map more.
+inline constexpr double kConstellationShare = 0.5;
 
 struct RjcResult {
   std::vector<int> feature_of;  // per measurement: its feature, or kStar
@@ -54,9 +65,20 @@ struct RjcResult {
 // resolved greedily by distance so that each feature is used once. A try whose JCBB* finds
 // no complete hypothesis contributes nothing. The best try has most pairings, ties broken by
 // D^2(H) + sum of the conditional distances (an O(k) stand-in for the joint distance).
-// After each try p_good = max(p_good, pairings(best) / |O|) and the number of tries becomes
-// t = log(p_fail) / log(1 - p_good^b); tries continue while tries < min(t, max_tries)
-// (9 tries at the defaults).
+// A try's pairings are scored once verified: taken again in the order the try accepted them,
+// each must pass the gate conditioned on all those kept before it (accept_sequentially();
+// O(k^3) for k pairings). Unverified, a wrong seed whose conditional gates are wide (a
+// compact seed leaves the rotation loose) collects chance pairings in a dense map and can
+// outnumber the truth. After each try p_good = max(p_good, pairings(best) / |O|) and the
+// number of tries becomes t = log(p_fail) / log(1 - p_good^b); tries continue while
+// tries < min(t, max_tries) (9 tries at the defaults).
+//
+// Constellation tries (options.positions given): if then the best try verifies fewer than
+// kConstellationShare of O, up to max_tries more tries each draw one measurement of O and take
+// its b - 1 nearest measurements of O as the seed. Where only a small patch of O has true
+// partners (a loop closed at large uncertainty), b independent draws are all in it with
+// probability share^b (about 1/900 at the README loop's last fold); a constellation is, once
+// its first draw is. The best try over both phases wins.
 //
 // The conditional gate tests each pairing against H only, not against the other added
 // pairings, so with verify on the best hypothesis is re-tested by accept_sequentially() (each
@@ -183,12 +205,15 @@ class RjcSearch {
   const RjcResult& result() const { return result_; }
 
  private:
-  enum class Stage { Start, Seed, Conditional, CompleteTry, Sequential, Completion, CompletionAdd, Joint, Done };
+  enum class Stage { Start, Seed, Conditional, CompleteTry, VerifyTry, Sequential, Completion, CompletionAdd, Joint, Done };
   std::int64_t start();
   std::int64_t seed();
   std::int64_t conditional_next();
   std::int64_t complete_try();
   void end_of_tries();
+  void end_of_try();  // the try's verified score against the best
+  void draw_uniform_sample();
+  bool draw_constellation();  // false if fewer than b measurements of O
   std::int64_t completion_next();
   void begin_completion_adds();
   std::int64_t completion_add_next();
@@ -209,6 +234,10 @@ class RjcSearch {
   CandidateLists sample_candidates_;
   std::vector<int> feature_of_;
   std::vector<int> used_features_;
+  std::vector<int> verified_scratch_;
+  std::optional<SequentialAcceptance> try_verification_;
+  int try_pairings_ = 0;
+  double try_score_ = 0.0;
   std::vector<char> feature_used_;  // per feature of m1, during the verification
   std::vector<Pairing> hypothesis_;
   std::vector<std::tuple<double, int, int>> conditional_;  // (distance^2, measurement, feature)
@@ -222,6 +251,8 @@ class RjcSearch {
   std::vector<Pairing> order_, best_order_;  // pairings in the order the try accepted them
   double p_good_ = 0.0;
   double tries_wanted_ = 0.0;
+  int constellation_tries_end_ = -1;  // -1: uniform tries; else the try count to stop at
+  std::vector<std::pair<double, int>> nearest_;  // scratch of draw_constellation()
   // The completion: (D^2, measurement, feature) of the unpaired measurements' candidates
   // conditioned on all kept pairings, and the next one to test or add.
   std::vector<std::tuple<double, int, int>> completion_;

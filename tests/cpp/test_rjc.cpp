@@ -1,5 +1,6 @@
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <random>
 #include <vector>
 
@@ -371,6 +372,34 @@ TEST(Rjc, WithTheCompletionEveryPairingIsTrueAndTheResultJointlyCompatible) {
                 1e-8 * (1.0 + result.joint_distance_sq));
   }
   EXPECT_GE(found, true_pairs * 9 / 10);
+}
+
+// Constellation tries (RjcOptions.positions, the second map's features where its map puts
+// them): a second map of 8 columns of which only 2 overlap the first. Every pairing returned
+// is true, on every seed, and the tries include the constellation phase where the uniform
+// tries verified under half of the overlap.
+TEST(Rjc, WithPositionsEveryPairingIsTrue) {
+  int constellation_runs = 0;
+  for (std::uint64_t seed = 0; seed < 10; ++seed) {
+    const JoinProblem problem = grid_join(seed, 0, 6, 4, 12);
+    auto positions = std::make_shared<std::vector<Vec2>>();
+    const int n1 = problem.model.first_size;
+    for (std::size_t j = 0; j < problem.truth.size(); ++j) {
+      positions->push_back(problem.model.x.segment<2>(2 * (n1 + static_cast<int>(j))));
+    }
+    RjcOptions options;
+    options.seed = seed;
+    options.positions = positions;
+    const RjcResult result = rjc(problem.candidates, problem.model, options);
+    for (std::size_t j = 0; j < result.feature_of.size(); ++j) {
+      if (result.feature_of[j] != kStar) {
+        EXPECT_EQ(result.feature_of[j], problem.truth[j]) << "seed " << seed;
+      }
+    }
+    EXPECT_GT(result.pairings, 0) << "seed " << seed;
+    constellation_runs += result.tries > 9 ? 1 : 0;
+  }
+  EXPECT_GT(constellation_runs, 0);
 }
 
 TEST(Rjc, RejectsBadOptions) {
