@@ -1,7 +1,4 @@
 #include "dcslam/dc_slam.hpp"
-#include "dcslam/errors.hpp"
-#include "dcslam/chi_square.hpp"
-#include "dcslam/feature_merging.hpp"
 
 #include <algorithm>
 #include <array>
@@ -10,6 +7,10 @@
 #include <iterator>
 #include <limits>
 #include <unordered_set>
+
+#include "dcslam/chi_square.hpp"
+#include "dcslam/errors.hpp"
+#include "dcslam/feature_merging.hpp"
 
 namespace dcslam {
 
@@ -187,13 +188,10 @@ void DCSlam::close_local_map() {
     for (std::int64_t id : local_->removed_ids()) add_alias(merged_into_, id, -1);
     for (const auto& [from, to] : local_->merged_ids()) add_alias(merged_into_, from, to);
     for (const char* name : kLocalCounters) closed_maps_counters_[name] += counter(local_->stats().counters, name);
+    for (std::int64_t id : local_->map().ids()) leaves_of_[id] = {closed_local_maps_};
   }
   auto node = std::make_shared<Node>();
   node->map = compact_copy(local_->map());
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    for (std::int64_t id : node->map->ids()) leaves_of_[id] = {closed_local_maps_};
-  }
   // Features seen once stay until the joins with the neighbouring local maps (the previous
   // one, for those first seen in this map's first steps; the next one, for those still
   // unexpired), and are kept only if matched there: the EKF's min_sightings rule across maps.
@@ -344,6 +342,7 @@ namespace {
 // What a join did to ids: each merged one now names the feature it joined; dropped ones, -1.
 // A merged feature's leaves join those of the feature it was merged into.
 void merge_leaves(LeafSets& leaves, std::int64_t from, std::int64_t to) {
+  if (from == to) return;
   const auto source = leaves.find(from);
   if (source == leaves.end()) return;
   std::vector<std::int64_t>& target = leaves[to];
@@ -357,7 +356,7 @@ void merge_leaves(LeafSets& leaves, std::int64_t from, std::int64_t to) {
 void record_merges(const MapJoin& join, IdAliases& aliases, LeafSets& leaves) {
   for (const auto& [from, to] : join.merged_ids()) {
     add_alias(aliases, from, to);
-    if (from != to) merge_leaves(leaves, from, to);
+    merge_leaves(leaves, from, to);
   }
   for (std::int64_t id : join.dropped_ids()) {
     add_alias(aliases, id, -1);

@@ -128,11 +128,20 @@ std::int64_t SequentialAcceptance::step() {
     ++removed_;
     return work;
   }
+  keep(pairing, factor, innovation);
+  return work;
+}
+
+void SequentialAcceptance::keep(const Pairing& pairing, const Eigen::LLT<Mat2>& factor, const Vec2& innovation) {
+  const auto m = static_cast<Eigen::Index>(kept_.size());
+  if (lower_.rows() < 2 * m + 2) {  // only pairings beyond the order (append()) grow it
+    lower_.conservativeResize(2 * m + 2, 2 * m + 2);
+    whitened_.conservativeResize(2 * m + 2);
+  }
   lower_.block(2 * m, 0, 2, 2 * m) = cross_.topRows(2 * m).transpose();
   lower_.block<2, 2>(2 * m, 2 * m) = factor.matrixL();
   whitened_.segment<2>(2 * m) = factor.matrixL().solve(innovation);
   kept_.push_back(pairing);
-  return work;
 }
 
 double SequentialAcceptance::conditional_distance_sq(const Pairing& pairing) {
@@ -145,20 +154,12 @@ double SequentialAcceptance::conditional_distance_sq(const Pairing& pairing) {
 }
 
 bool SequentialAcceptance::append(const Pairing& pairing) {
-  const auto m = static_cast<Eigen::Index>(kept_.size());
   Vec2 innovation;
   Mat2 covariance;
   condition(pairing, innovation, covariance);
   const Eigen::LLT<Mat2> factor(covariance);
   if (factor.info() != Eigen::Success || factor.matrixL().solve(innovation).squaredNorm() > gate_) return false;
-  if (lower_.rows() < 2 * m + 2) {
-    lower_.conservativeResize(2 * m + 2, 2 * m + 2);
-    whitened_.conservativeResize(2 * m + 2);
-  }
-  lower_.block(2 * m, 0, 2, 2 * m) = cross_.topRows(2 * m).transpose();
-  lower_.block<2, 2>(2 * m, 2 * m) = factor.matrixL();
-  whitened_.segment<2>(2 * m) = factor.matrixL().solve(innovation);
-  kept_.push_back(pairing);
+  keep(pairing, factor, innovation);
   feature_of_[pairing.measurement] = pairing.feature;
   return true;
 }

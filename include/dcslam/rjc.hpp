@@ -4,12 +4,14 @@
 // same PairingModel as JCBB (measurement = feature of the second map, feature = feature of
 // the first).
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <random>
 #include <tuple>
-#include <memory>
 #include <utility>
 #include <vector>
+
+#include <Eigen/Cholesky>
 
 #include "dcslam/blocked_cholesky.hpp"
 #include "dcslam/jcbb.hpp"
@@ -140,6 +142,8 @@ class SequentialAcceptance {
  private:
   // nu_a and C_a of `pairing` conditioned on the kept pairings; leaves L^-1 C_Ka in cross_.
   void condition(const Pairing& pairing, Vec2& innovation, Mat2& covariance);
+  // Grows the factor by the pairing just conditioned (cross_ as condition() left it).
+  void keep(const Pairing& pairing, const Eigen::LLT<Mat2>& factor, const Vec2& innovation);
 
   const std::vector<Pairing>& order_;
   int seed_size_;
