@@ -35,10 +35,7 @@ def run(sim, seed: int, oracle=None):
     slam = dcslam.DCSlam(dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=seed))
     if oracle is not None:
         slam.set_join_oracle(*oracle)
-    returned = []
-    for step in sim.steps:
-        slam.predict(step.u, step.Q)
-        returned.append(slam.update(step.z, step.R))
+    returned = slam.run(sim.steps)
     estimate = slam.estimate()
     return evaluation.evaluate_run(slam, estimate, returned, sim), returned
 

@@ -55,10 +55,7 @@ def test_scores_equal_brute_force_on_random_clusterings(seed):
 def known_run():
     sim = dcslam.simulate("loop", steps=120, seed=3, clutter=0.1)
     slam = dcslam.EkfSlam(dcslam.SlamConfig(association="known"))
-    returned = []
-    for step in sim.steps:
-        slam.predict(step.u, step.Q)
-        returned.append(slam.update(step.z, step.R, step.true_ids))
+    returned = slam.run(sim.steps, ids_field="true_ids")
     return sim, slam, slam.estimate(), returned
 
 

@@ -14,10 +14,7 @@ def run(sim, oracle=None):
     slam = dcslam.DCSlam(dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=0))
     if oracle is not None:
         slam.set_join_oracle(*oracle)
-    returned = []
-    for step in sim.steps:
-        slam.predict(step.u, step.Q)
-        returned.append(slam.update(step.z, step.R))
+    returned = slam.run(sim.steps)
     slam.finish_joins()
     return slam, returned
 

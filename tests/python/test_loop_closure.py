@@ -12,10 +12,7 @@ from dcslam import evaluation
 def test_readme_loop_closes_without_ids():
     sim = dcslam.simulate("loop", steps=400, seed=1)
     slam = dcslam.DCSlam(dcslam.SlamConfig(association="jcbb", join_association="rjc"))
-    returned = []
-    for step in sim.steps:
-        slam.predict(step.u, step.Q)
-        returned.append(slam.update(step.z, step.R))
+    returned = slam.run(sim.steps)
     estimate = slam.estimate()
     robot = evaluation.robot_scores(estimate, sim.poses[-1])
     # Ground truth from the simulator: the loop is closed (before: 10.5 m off) and the final
