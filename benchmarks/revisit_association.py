@@ -20,7 +20,7 @@ import numpy as np
 import dcslam
 from dcslam import evaluation
 
-PAPER_TRAJECTORIES = {t: dict(trajectory=t, steps=600, clutter=0.1) for t in ("straight", "loop", "lawn_mowing", "snail")}
+PAPER_TRAJECTORIES = ("straight", "loop", "lawn_mowing", "snail")  # 600 steps, 10 % clutter
 TARGETS = dict(precision=0.98, recall=0.95, features_per_landmark=1.05, nees=11.34)
 
 
@@ -57,8 +57,7 @@ def main() -> None:
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
 
-    scenarios = {**dcslam.REVISIT_SCENARIOS, **PAPER_TRAJECTORIES}
-    names = args.scenarios.split(",") if args.scenarios else list(scenarios)
+    names = args.scenarios.split(",") if args.scenarios else [*dcslam.REVISIT_SCENARIOS, *PAPER_TRAJECTORIES]
     config = dcslam.SlamConfig(association="jcbb", join_association="rjc", **parse_overrides(args.set))
     rows = []
     header = (f"{'scenario':16s} {'filter':6s} {'P':>6s} {'R':>6s} {'feat/lm':>7s} {'dup':>5s} {'wrong':>5s} "
@@ -66,11 +65,10 @@ def main() -> None:
     print(f"seeds 0..{args.seeds - 1}; means over seeds; 'NEES ok' and 'all met' count seeds; config overrides: {args.set}")
     print(header)
     for name in names:
-        parameters = dict(scenarios[name])
-        trajectory, steps = parameters.pop("trajectory"), parameters.pop("steps")
         per_filter = {f: [] for f in args.filters.split(",")}
         for seed in range(args.seeds):
-            sim = dcslam.simulate(trajectory, steps=steps, seed=seed, **parameters)
+            sim = (dcslam.revisit_scenario(name, seed) if name in dcslam.REVISIT_SCENARIOS
+                   else dcslam.simulate(name, steps=600, seed=seed, clutter=0.1))
             for filter_name in per_filter:
                 scores, seconds = run_one(filter_name, sim, dataclasses.replace(config, seed=seed))
                 per_filter[filter_name].append((scores, seconds))

@@ -79,10 +79,8 @@ def join_scores(slam, returned, truth):
 
 
 def diagnose(name: str, seed: int, filter_name: str):
-    scenario = dcslam.REVISIT_SCENARIOS.get(name, dict(trajectory=name, steps=600, clutter=0.1))
-    parameters = dict(scenario)
-    trajectory, steps = parameters.pop("trajectory"), parameters.pop("steps")
-    sim = dcslam.simulate(trajectory, steps=steps, seed=seed, **parameters)
+    sim = (dcslam.revisit_scenario(name, seed) if name in dcslam.REVISIT_SCENARIOS
+           else dcslam.simulate(name, steps=600, seed=seed, clutter=0.1))
     config = dcslam.SlamConfig(association="jcbb", join_association="rjc", amortize=False, seed=seed)
     slam = dcslam.DCSlam(config) if filter_name == "dc" else dcslam.EkfSlam(config)
     returned, closed_before = [], []  # closed_before: local maps closed before each step's scan

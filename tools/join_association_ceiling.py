@@ -41,11 +41,9 @@ def run(sim, seed: int, oracle=None):
 
 
 def scenario_rows(name: str, seeds: int):
-    parameters = dict(dcslam.REVISIT_SCENARIOS[name])
-    trajectory, steps = parameters.pop("trajectory"), parameters.pop("steps")
     rows = {mode: [] for mode in MODES}
     for seed in range(seeds):
-        sim = dcslam.simulate(trajectory, steps=steps, seed=seed, **parameters)
+        sim = dcslam.revisit_scenario(name, seed)
         scores, returned = run(sim, seed)
         rows["as is"].append(scores)
         features, landmarks = evaluation.feature_landmarks(sim.true_ids, np.concatenate(returned))
