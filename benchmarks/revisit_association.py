@@ -58,7 +58,7 @@ def main() -> None:
     args = parser.parse_args()
 
     names = args.scenarios.split(",") if args.scenarios else [*dcslam.REVISIT_SCENARIOS, *PAPER_TRAJECTORIES]
-    config = dcslam.SlamConfig(association="jcbb", join_association="rjc", **parse_overrides(args.set))
+    config = dcslam.SlamConfig(**{"association": "jcbb", "join_association": "rjc", **parse_overrides(args.set)})
     rows = []
     header = (f"{'scenario':16s} {'filter':6s} {'P':>6s} {'R':>6s} {'feat/lm':>7s} {'dup':>5s} {'wrong':>5s} "
               f"{'err m':>6s} {'NEES':>7s} {'NEES ok':>7s} {'all met':>7s} {'s':>5s}")

@@ -56,8 +56,10 @@ void define_dc_slam(py::module_& m) {
                oracle->mode = JoinOracle::Mode::AmongCandidates;
              } else if (mode == "remove_wrong") {
                oracle->mode = JoinOracle::Mode::RemoveWrong;
+             } else if (mode == "audit") {
+               oracle->mode = JoinOracle::Mode::Audit;
              } else {
-               throw InvalidArgument("set_join_oracle: mode must be 'truth', 'among_candidates' or 'remove_wrong', got '" + mode + "'");
+               throw InvalidArgument("set_join_oracle: mode must be 'truth', 'among_candidates', 'remove_wrong' or 'audit', got '" + mode + "'");
              }
              for (std::size_t k = 0; k < feature_ids.size(); ++k) oracle->landmark_of[feature_ids[k]] = landmark_ids[k];
              slam.set_join_oracle(std::move(oracle));
@@ -71,6 +73,10 @@ void define_dc_slam(py::module_& m) {
                record["first_ids"] = event.pairing.first_ids;
                record["second_ids"] = event.pairing.second_ids;
                record["pairs"] = event.pairing.pairs;
+               record["truth_pairs"] = event.pairing.truth_pairs;
+               record["truth_distance_sq"] = event.pairing.truth_distance_sq;
+               record["truth_candidate"] = std::vector<bool>(event.pairing.truth_candidate.begin(), event.pairing.truth_candidate.end());
+               record["truth_consistent"] = std::vector<bool>(event.pairing.truth_consistent.begin(), event.pairing.truth_consistent.end());
                out.append(record);
              }
              return out;

@@ -181,7 +181,7 @@ std::int64_t JoinAssociator::run_jcbb() {
                  (candidate_count + jcbb_result.nodes_expanded * std::max(1, jcbb_result.pairings));
 }
 
-void JoinAssociator::apply_oracle(std::vector<int>& feature_of) const {
+std::vector<int> JoinAssociator::oracle_pairing() const {
   const JoinOracle& oracle = *options_.oracle;
   const auto landmark = [&oracle](std::int64_t id) {
     const auto found = oracle.landmark_of.find(id);
@@ -192,32 +192,75 @@ void JoinAssociator::apply_oracle(std::vector<int>& feature_of) const {
     const std::int64_t l = landmark(frame_.first().ids()[static_cast<std::size_t>(i)]);
     if (l >= 0) unused_of_landmark[l] = static_cast<int>(i);  // the first of the landmark wins
   }
-  for (std::size_t j = 0; j < feature_of.size(); ++j) {
-    int truth = kStar;
+  std::vector<int> truth(static_cast<std::size_t>(frame_.second().num_features()), kStar);
+  for (std::size_t j = 0; j < truth.size(); ++j) {
     const auto found = unused_of_landmark.find(landmark(frame_.second().ids()[j]));
     if (found != unused_of_landmark.end()) {
-      truth = found->second;
+      truth[j] = found->second;
       unused_of_landmark.erase(found);
     }
-    switch (oracle.mode) {
+  }
+  return truth;
+}
+
+// Research only: O(k^3) in the true pairs k, outside the amortized schedule.
+void JoinAssociator::audit_oracle(const std::vector<int>& truth) {
+  std::vector<JoinTruthAudit>& audit = result_.truth_audit;
+  for (std::size_t j = 0; j < truth.size(); ++j) {
+    if (truth[j] == kStar) continue;
+    JoinTruthAudit entry;
+    entry.first = truth[j];
+    entry.second = static_cast<Index>(j);
+    entry.distance_sq = individual_distance_sq(model_, Pairing{static_cast<int>(j), truth[j]});
+    const std::vector<int>& candidates = candidates_[j];
+    entry.candidate = std::find(candidates.begin(), candidates.end(), truth[j]) != candidates.end();
+    audit.push_back(entry);
+  }
+  std::vector<std::size_t> by_distance;
+  for (std::size_t k = 0; k < audit.size(); ++k) {
+    if (audit[k].candidate) by_distance.push_back(k);
+  }
+  std::sort(by_distance.begin(), by_distance.end(),
+            [&audit](std::size_t a, std::size_t b) { return audit[a].distance_sq < audit[b].distance_sq; });
+  std::vector<Pairing> order;
+  std::vector<int> kept(truth.size(), kStar);
+  for (std::size_t k : by_distance) {
+    order.push_back(Pairing{static_cast<int>(audit[k].second), static_cast<int>(audit[k].first)});
+    kept[static_cast<std::size_t>(audit[k].second)] = static_cast<int>(audit[k].first);
+  }
+  accept_sequentially(order, 0, kept, model_, chi2_quantile(2, options_.gate_confidence));
+  for (std::size_t k : by_distance) {
+    audit[k].consistent = kept[static_cast<std::size_t>(audit[k].second)] != kStar;
+  }
+}
+
+void JoinAssociator::apply_oracle(const std::vector<int>& truth, std::vector<int>& feature_of) const {
+  for (std::size_t j = 0; j < feature_of.size(); ++j) {
+    switch (options_.oracle->mode) {
       case JoinOracle::Mode::Truth:
-        feature_of[j] = truth;
+        feature_of[j] = truth[j];
         break;
       case JoinOracle::Mode::AmongCandidates: {
         const std::vector<int>& candidates = candidates_[j];
-        const bool candidate = std::find(candidates.begin(), candidates.end(), truth) != candidates.end();
-        feature_of[j] = candidate ? truth : kStar;
+        const bool candidate = std::find(candidates.begin(), candidates.end(), truth[j]) != candidates.end();
+        feature_of[j] = candidate ? truth[j] : kStar;
         break;
       }
       case JoinOracle::Mode::RemoveWrong:
-        if (feature_of[j] != truth) feature_of[j] = kStar;
+        if (feature_of[j] != truth[j]) feature_of[j] = kStar;
+        break;
+      case JoinOracle::Mode::Audit:
         break;
     }
   }
 }
 
 void JoinAssociator::finish(std::vector<int> feature_of) {
-  if (options_.oracle) apply_oracle(feature_of);
+  if (options_.oracle) {
+    const std::vector<int> truth = oracle_pairing();
+    audit_oracle(truth);
+    apply_oracle(truth, feature_of);
+  }
   for (std::size_t j = 0; j < feature_of.size(); ++j) {
     const int i = feature_of[j];
     if (i != kStar) result_.pairs.emplace_back(i, static_cast<Index>(j));

@@ -15,11 +15,26 @@ least two of its measurements), reports:
   says is one landmark; "incompatible" means the maps disagree about it by more than their
   covariances allow.
 
-With ``--joins`` (D&C), every real join's association is scored instead: each feature of the
-two maps is labelled with the landmark most of its own measurements came from, and the tool
-counts the second map's features that had a partner in the first ("pairable"), the pairs
+For D&C the run is repeated with a join oracle in ``"audit"`` mode (``DCSlam.set_join_oracle``:
+each feature labelled with the landmark most of its measurements came from; the decisions are
+not changed, so the second run is the first one again, which the tool checks). Every true pair
+of every join is then seen through that join's own model, and a true pair the join did not
+make gets its reason:
+
+- ``failed IC``: its marginal Mahalanobis distance is beyond the individual gate that builds
+  the candidate lists, so it was never tested;
+- ``maps disagree``: it is a candidate, but it fails the decision gate given the more certain
+  true pairs, so no association search could accept it (the two maps are mutually
+  inconsistent about it);
+- ``lost in search``: it is consistent with the other true pairs, and RJC/JCBB chose
+  otherwise (another pair for one of its features, or none).
+
+Each duplicated landmark gets the reason at the join where its features should have met.
+
+With ``--joins``, every real join's scores are listed instead: each feature of the two maps
+is labelled with its landmark, and the tool counts the true pairs ("pairable"), the pairs
 made, the correct and the wrong ones (and of the wrong, those whose true partner was there),
-and the pairable ones left unpaired.
+and the true pairs left unmade by reason; the totals are split by join size.
 
 Usage: python tools/duplicate_diagnosis.py SCENARIO [--seed 0] [--filter dc|ekf] [--list] [--joins]
        (SCENARIO: a dcslam.REVISIT_SCENARIOS name or a trajectory, e.g. lawn_mowing)
@@ -57,50 +72,77 @@ def join_tree(slam, leaf_of_step: np.ndarray):
     return spans
 
 
-def join_scores(slam, returned, truth):
-    """Per real join: sizes, pairable, paired, correct, wrong (true partner present), missed."""
-    features, landmarks = evaluation.feature_landmarks(truth, np.concatenate(returned))
-    label = dict(zip(features.tolist(), landmarks.tolist()))
+REASONS = ("failed IC", "maps disagree", "lost in search")
+
+
+def missed_reason(candidate: bool, consistent: bool) -> str:
+    return REASONS[0] if not candidate else REASONS[1] if not consistent else REASONS[2]
+
+
+def join_scores(slam, label):
+    """Per real join: sizes, pairable, paired, correct, wrong (true partner present), and the
+    true pairs not made, by reason (the audit of the join oracle's pairing)."""
     rows = []
     for event, record in zip(sorted(slam.stats.joins, key=lambda j: j["index"]), slam.join_pairings()):
-        first = collections.Counter(label.get(i, -1) for i in record["first_ids"].tolist())
+        first = {label.get(i, -1) for i in record["first_ids"].tolist()}
         paired = {int(j): int(i) for i, j in record["pairs"]}
-        pairable = [j for j in record["second_ids"].tolist() if label.get(j, -1) >= 0 and label.get(j, -1) in first]
         correct = sum(1 for j, i in paired.items() if label.get(j, -1) >= 0 and label.get(j, -1) == label.get(i, -2))
-        wrong = len(paired) - correct
         wrong_partner_there = sum(1 for j, i in paired.items()
                                   if label.get(j, -1) >= 0 and label.get(j, -1) != label.get(i, -2)
                                   and label.get(j, -1) in first)
+        missed = collections.Counter()
+        for (i, j), candidate, consistent in zip(record["truth_pairs"].tolist(), record["truth_candidate"],
+                                                 record["truth_consistent"]):
+            if paired.get(j) != i:
+                missed[missed_reason(bool(candidate), bool(consistent))] += 1
         rows.append(dict(index=event["index"], leaves=event["leaves"], first=len(record["first_ids"]),
-                         second=len(record["second_ids"]), overlap=event["overlap"], pairable=len(pairable),
-                         paired=len(paired), correct=correct, wrong=wrong, wrong_partner_there=wrong_partner_there,
-                         missed=sum(1 for j in pairable if j not in paired)))
+                         second=len(record["second_ids"]), overlap=event["overlap"],
+                         pairable=len(record["truth_pairs"]), paired=len(paired), correct=correct,
+                         wrong=len(paired) - correct, wrong_partner_there=wrong_partner_there,
+                         missed=sum(missed.values()), failed_ic=missed[REASONS[0]],
+                         maps_disagree=missed[REASONS[1]], lost_in_search=missed[REASONS[2]]))
     return rows
+
+
+def run(filter_name: str, sim, config, oracle=None):
+    """One run, per step: the local maps closed before its scan (D&C) and the ids returned."""
+    slam = dcslam.DCSlam(config) if filter_name == "dc" else dcslam.EkfSlam(config)
+    if oracle is not None:
+        slam.set_join_oracle(*oracle, mode="audit")
+    returned, closed_before = [], []
+    for step in sim.steps:
+        slam.predict(step.u, step.Q)
+        if filter_name == "dc":
+            closed_before.append(int(slam._core.stats["counters"].get("local_maps_closed", 0)))
+        returned.append(slam.update(step.z, step.R))
+    return slam, returned, closed_before
 
 
 def diagnose(name: str, seed: int, filter_name: str):
     sim = (dcslam.revisit_scenario(name, seed) if name in dcslam.REVISIT_SCENARIOS
            else dcslam.simulate(name, steps=600, seed=seed, clutter=0.1))
     config = dcslam.SlamConfig(association="jcbb", join_association="rjc", amortize=False, seed=seed)
-    slam = dcslam.DCSlam(config) if filter_name == "dc" else dcslam.EkfSlam(config)
-    returned, closed_before = [], []  # closed_before: local maps closed before each step's scan
-    for step in sim.steps:
-        slam.predict(step.u, step.Q)
-        if filter_name == "dc":
-            closed_before.append(int(slam._core.stats["counters"].get("local_maps_closed", 0)))
-        returned.append(slam.update(step.z, step.R))
+    slam, returned, closed_before = run(filter_name, sim, config)
+    truth = np.asarray(sim.true_ids)
+    features, landmarks = evaluation.feature_landmarks(truth, np.concatenate(returned))
+    label = dict(zip(features.tolist(), landmarks.tolist()))
+    if filter_name == "dc":
+        slam, audited, closed_before = run(filter_name, sim, config, (features, landmarks))
+        if not all(np.array_equal(a, b) for a, b in zip(returned, audited)):
+            raise RuntimeError("the audited run returned other ids: the audit changed a decision")
     estimate = slam.estimate()
     scores = evaluation.evaluate_run(slam, estimate, returned, sim)
 
     raw = np.concatenate(returned)
     final = slam.resolve(raw)
-    truth = np.asarray(sim.true_ids)
     step_of = np.repeat(np.arange(len(returned)), [len(r) for r in returned])
     born = {}
     for final_id, step in zip(final, step_of):
         born.setdefault(int(final_id), int(step))
     leaf = np.asarray(closed_before) if filter_name == "dc" else np.zeros(len(returned), int)
     spans = join_tree(slam, leaf) if filter_name == "dc" else []
+    records = {event["index"]: record for event, record in
+               zip(sorted(slam.stats.joins, key=lambda j: j["index"]), slam.join_pairings())} if spans else {}
     index = {int(i): k for k, i in enumerate(estimate.landmark_ids)}
     gate = chi2_threshold(2, alpha=1 - config.gate_confidence)
 
@@ -115,12 +157,15 @@ def diagnose(name: str, seed: int, filter_name: str):
             continue
         a, b = sorted(features, key=lambda f: born[f])[:2]
         leaf_a, leaf_b = int(leaf[born[a]]), int(leaf[born[b]])
+        reason = ""
         if leaf_a == leaf_b:
             where = "same local map" if filter_name == "dc" else "EKF map"
         else:
             met = next((s for s in spans if s[0] <= leaf_a and leaf_b <= s[1]), None)
             where = (f"join of {met[2]['leaves']} leaves ({met[2]['features_first']}+{met[2]['features_second']} "
                      f"features, overlap {met[2]['overlap']}, {met[2]['pairings']} pairs)") if met else "final fold"
+            if met:
+                reason = join_reason(records[met[2]["index"]], landmark, label)
         distance = np.inf
         if a in index and b in index:
             ia, ib = 3 + 2 * index[a], 3 + 2 * index[b]
@@ -129,9 +174,22 @@ def diagnose(name: str, seed: int, filter_name: str):
             d = estimate.landmarks[index[a]] - estimate.landmarks[index[b]]
             distance = float(d @ np.linalg.solve(S, d))
         reports.append(dict(landmark=landmark, steps=(born[a], born[b]), leaves=(leaf_a, leaf_b), where=where,
-                            distance_sq=distance, compatible=distance <= gate))
-    joins = join_scores(slam, returned, truth) if filter_name == "dc" else []
+                            reason=reason, distance_sq=distance, compatible=distance <= gate))
+    joins = join_scores(slam, label) if filter_name == "dc" else []
     return scores, reports, joins
+
+
+def join_reason(record, landmark: int, label) -> str:
+    """Why the join `record` did not make the true pair of `landmark`, with its marginal D^2."""
+    paired = {int(j): int(i) for i, j in record["pairs"]}
+    for (i, j), distance_sq, candidate, consistent in zip(record["truth_pairs"].tolist(), record["truth_distance_sq"],
+                                                          record["truth_candidate"], record["truth_consistent"]):
+        if label.get(j) != landmark:
+            continue
+        if paired.get(j) == i:
+            return "made"  # made there, split again later (a feature merged away elsewhere)
+        return f"{missed_reason(bool(candidate), bool(consistent))} (D^2 {distance_sq:.1f})"
+    return "no true pair there (a feature of the landmark was dropped or merged elsewhere)"
 
 
 def main() -> None:
@@ -145,18 +203,22 @@ def main() -> None:
     scores, reports, joins = diagnose(args.scenario, args.seed, args.filter)
     if args.joins:
         keys = ("index", "leaves", "first", "second", "overlap", "pairable", "paired", "correct", "wrong",
-                "wrong_partner_there", "missed")
+                "wrong_partner_there", "missed", "failed_ic", "maps_disagree", "lost_in_search")
         print(" ".join(f"{k:>8s}" if len(k) <= 8 else k for k in keys))
         for row in joins:
             print(" ".join(f"{row[k]:8d}" if len(k) <= 8 else f"{row[k]:{len(k)}d}" for k in keys))
-        totals = {k: sum(r[k] for r in joins) for k in ("pairable", "paired", "correct", "wrong", "missed")}
-        print("all joins: " + ", ".join(f"{k} {v}" for k, v in totals.items()))
+    if joins:
+        counted = ("pairable", "paired", "correct", "wrong", "missed", "failed_ic", "maps_disagree", "lost_in_search")
+        for title, rows in (("joins of <= 4 leaves", [r for r in joins if r["leaves"] <= 4]),
+                            ("joins of > 4 leaves", [r for r in joins if r["leaves"] > 4])):
+            print(f"{title}: " + ", ".join(f"{k} {sum(r[k] for r in rows)}" for k in counted))
     a = scores.association
     print(f"{args.scenario} seed {args.seed} {args.filter}: P {a.pairwise_precision:.3f} R {a.pairwise_recall:.3f} "
           f"features/landmark {a.features_per_landmark:.3f}, {len(reports)} duplicated landmarks")
     if args.list:
         for r in reports:
-            print(f"  landmark {r['landmark']:5d} steps {r['steps']} leaves {r['leaves']} {r['where']}: "
+            reason = f" {r['reason']};" if r["reason"] else ""
+            print(f"  landmark {r['landmark']:5d} steps {r['steps']} leaves {r['leaves']} {r['where']}:{reason} "
                   f"final D^2 {r['distance_sq']:.1f} ({'compatible' if r['compatible'] else 'incompatible'})")
     table = collections.Counter(
         ("final fold" if r["where"] == "final fold" else "join" if r["where"].startswith("join") else r["where"],
@@ -164,6 +226,9 @@ def main() -> None:
     print(f"{'where they should have met':28s} {'compatible':>10s} {'incompatible':>12s}")
     for where in sorted({w for w, _ in table}):
         print(f"{where:28s} {table[(where, 'compatible')]:10d} {table[(where, 'incompatible')]:12d}")
+    at_joins = collections.Counter(r["reason"].split(" (")[0] for r in reports if r["where"].startswith("join"))
+    if at_joins:
+        print("at the join where they should have met: " + ", ".join(f"{k} {v}" for k, v in sorted(at_joins.items())))
 
 
 if __name__ == "__main__":

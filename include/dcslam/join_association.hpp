@@ -38,6 +38,7 @@ struct JoinAssociationResult {
   std::vector<std::pair<Eigen::Index, Eigen::Index>> pairs;  // (i in m1, j in m2)
   int overlap = 0;
   int tries = 0;
+  std::vector<JoinTruthAudit> truth_audit;  // only with a JoinOracle
 };
 
 JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options);
@@ -73,8 +74,11 @@ class JoinAssociator {
   std::int64_t advance_rjc(std::int64_t budget);
   std::int64_t run_jcbb();
   void finish(std::vector<int> feature_of);
-  // JoinOracle: the decision corrected with the truth.
-  void apply_oracle(std::vector<int>& feature_of) const;
+  // JoinOracle: its pairing (per m2 feature, its m1 partner or kStar), the audit of that
+  // pairing, and the decision corrected with it.
+  std::vector<int> oracle_pairing() const;
+  void audit_oracle(const std::vector<int>& truth);
+  void apply_oracle(const std::vector<int>& truth, std::vector<int>& feature_of) const;
 
   const JoinFrame& frame_;
   JoinOptions options_;

@@ -34,9 +34,24 @@ struct JoinOracle {
     Truth,            // the oracle pairing, whatever the gates say
     AmongCandidates,  // the oracle pairing where it is among the individually compatible candidates
     RemoveWrong,      // the association's own pairs, less those the oracle pairing does not hold
+    Audit,            // the association's own pairs, unchanged; the oracle pairing only audited
   };
   Mode mode = Mode::Truth;
   std::unordered_map<std::int64_t, std::int64_t> landmark_of;
+};
+
+// A JoinOracle's pairing seen through the join's own pairing model, to tell why a true pair
+// was not made: it failed the individual gate that builds the candidate lists (the pair is
+// never tested), or it is not compatible given the other true pairs (the two maps disagree
+// about it beyond their covariances, so no association search can accept it), or it is
+// consistent and the search chose something else.
+struct JoinTruthAudit {
+  Eigen::Index first = 0, second = 0;  // i in m1, j in m2
+  double distance_sq = 0.0;            // marginal D^2 of the pair
+  bool candidate = false;              // D^2 within the pruning gate
+  // Accepted when the candidate true pairs are taken in increasing marginal D^2, each at the
+  // decision gate conditioned on the true pairs kept before it (accept_sequentially()).
+  bool consistent = false;
 };
 
 struct JoinOptions {
@@ -68,6 +83,11 @@ struct JoinOptions {
 struct JoinPairingRecord {
   std::vector<std::int64_t> first_ids, second_ids;              // features of m1 and m2
   std::vector<std::pair<std::int64_t, std::int64_t>> pairs;     // (id in m1, id in m2)
+  // With a JoinOracle: its pairing, audited against the join's own model (JoinTruthAudit).
+  std::vector<std::pair<std::int64_t, std::int64_t>> truth_pairs;  // (id in m1, id in m2)
+  std::vector<double> truth_distance_sq;  // marginal D^2 of each
+  std::vector<char> truth_candidate;      // passed the individual (pruning) gate
+  std::vector<char> truth_consistent;     // passed the gate given the more certain true pairs
 };
 
 struct JoinReport {
@@ -229,6 +249,7 @@ class MapJoin {
   JoinReport report_;
   JoinPairingRecord pairing_record_;
   Pairs pairs_;
+  std::vector<JoinTruthAudit> truth_audit_;  // from the associator, until recorded
   std::vector<Eigen::Index> first_tentative_;
   std::vector<Eigen::Index> second_tentative_;
   std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids_;

@@ -278,12 +278,25 @@ class DCSlam(SlamFilter):
         maps' features) and ``pairs`` ((k, 2) int64 array of (id in the first map, id in the
         second) matched). Empty arrays while a join is pending. Ids are those ``update()``
         returned (before ``resolve()``), so a simulator's ids label them; see
-        ``tools/duplicate_diagnosis.py --joins``."""
+        ``tools/duplicate_diagnosis.py --joins``.
+
+        With a join oracle set (:meth:`set_join_oracle`), each dict also audits the oracle's
+        pairing through the join's own model: ``truth_pairs`` ((t, 2) int64, as ``pairs``),
+        ``truth_distance_sq`` (t,) the marginal Mahalanobis distance of each true pair,
+        ``truth_candidate`` (t,) bool, whether it passed the individual gate that builds the
+        candidate lists, and ``truth_consistent`` (t,) bool, whether it passes the decision
+        gate given the more certain true pairs (taken in increasing distance): a true pair
+        that is not consistent is one the two maps disagree about. Empty without an oracle."""
         records = []
         for record in self._core.join_pairings():
-            pairs = np.asarray(record["pairs"], dtype=np.int64).reshape(-1, 2)
-            records.append(dict(first_ids=np.asarray(record["first_ids"], dtype=np.int64),
-                                second_ids=np.asarray(record["second_ids"], dtype=np.int64), pairs=pairs))
+            records.append(dict(
+                first_ids=np.asarray(record["first_ids"], dtype=np.int64),
+                second_ids=np.asarray(record["second_ids"], dtype=np.int64),
+                pairs=np.asarray(record["pairs"], dtype=np.int64).reshape(-1, 2),
+                truth_pairs=np.asarray(record["truth_pairs"], dtype=np.int64).reshape(-1, 2),
+                truth_distance_sq=np.asarray(record["truth_distance_sq"], dtype=float),
+                truth_candidate=np.asarray(record["truth_candidate"], dtype=bool),
+                truth_consistent=np.asarray(record["truth_consistent"], dtype=bool)))
         return records
 
     def set_join_oracle(self, feature_ids, landmark_ids, mode: str = "truth") -> None:
@@ -297,7 +310,9 @@ class DCSlam(SlamFilter):
         ``"truth"`` pairs each feature of the second map with the first unused feature of its
         landmark in the first map; ``"among_candidates"`` does so only where that feature is
         among the individually compatible candidates; ``"remove_wrong"`` keeps the
-        association's own pairs less the wrong ones. Only before the first ``predict()``.
+        association's own pairs less the wrong ones; ``"audit"`` changes nothing and records
+        the oracle's pairing in :meth:`join_pairings` (why a true pair was not made). Only
+        before the first ``predict()``.
         See ``tools/join_association_ceiling.py``."""
         features = np.asarray(feature_ids)
         landmarks = np.asarray(landmark_ids)

@@ -5,6 +5,7 @@ import collections
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 import dcslam
 from dcslam import evaluation
@@ -98,3 +99,42 @@ def test_bad_oracle_calls_are_named_errors():
     slam.predict(np.zeros(3), 1e-4 * np.eye(3))
     with pytest.raises(ValueError, match="before the first predict"):
         slam.set_join_oracle([1], [2], "truth")
+
+
+def test_audit_changes_nothing_and_records_the_true_pairs(scene):
+    sim, slam_as_is, returned, label, oracle = scene
+    slam, returned_again = run(sim, (*oracle, "audit"))
+    for first, second in zip(returned, returned_again):
+        np.testing.assert_array_equal(first, second)
+    gate = chi2.ppf(0.999, 2)  # the pruning gate at gate_confidence 0.99
+    reasons = collections.Counter()
+    for record, plain in zip(slam.join_pairings(), slam_as_is.join_pairings()):
+        np.testing.assert_array_equal(record["pairs"], plain["pairs"])
+        assert len(plain["truth_pairs"]) == 0  # no oracle, no audit
+        truth = record["truth_pairs"]
+        assert len(truth) == expected_pair_count(record, label)
+        for i, j in truth.tolist():
+            assert label[i] == label[j] >= 0
+        distance = record["truth_distance_sq"]
+        assert distance.shape == record["truth_candidate"].shape == record["truth_consistent"].shape == (len(truth),)
+        np.testing.assert_array_equal(record["truth_candidate"], distance <= gate)
+        assert not np.any(record["truth_consistent"] & ~record["truth_candidate"])
+        paired = {int(j): int(i) for i, j in record["pairs"]}
+        for (i, j), candidate, consistent in zip(truth.tolist(), record["truth_candidate"], record["truth_consistent"]):
+            made = paired.get(j) == i
+            reasons["made" if made else "not a candidate" if not candidate else
+                    "inconsistent" if not consistent else "lost"] += 1
+            if made:
+                assert candidate  # the search only pairs candidates
+    # On this scene the joins make most true pairs and lose some of every kind but the first.
+    assert reasons["made"] > 10 * (reasons["lost"] + reasons["inconsistent"]) > 0
+
+
+def test_audit_of_a_truth_run_marks_every_pair_made():
+    sim = dcslam.revisit_scenario("loop_both_ways", 1)
+    _, returned = run(sim)
+    features, landmarks = evaluation.feature_landmarks(sim.true_ids, np.concatenate(returned))
+    slam, _ = run(sim, (features, landmarks, "truth"))
+    for record in slam.join_pairings():
+        made = {(int(i), int(j)) for i, j in record["pairs"]}
+        assert made == {(int(i), int(j)) for i, j in record["truth_pairs"]}
