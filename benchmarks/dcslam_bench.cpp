@@ -1,7 +1,7 @@
 // dcslam_bench: the native benchmark (no Python needed). Runs the EKF and/or D&C SLAM on the
 // paper's simulator, on Victoria Park and on iSAM/GTSAM 2D files, and reports total time,
 // worst and mean step, map size, joins, association counts and peak memory, as ratios
-// measured in one run (DESIGN.md §9); it also times a join's data association against map
+// measured in one run (docs/design.md §9); it also times a join's data association against map
 // size. Usage: dcslam_bench --help.
 #include <algorithm>
 #include <chrono>

@@ -11,6 +11,9 @@ model. The reference is the batch optimum (Levenberg-Marquardt started at iSAM2'
 Usage:
     python benchmarks/gtsam_compare.py [--file PATH] [--max-steps N] [--json OUT] [--markdown]
 
+The default file is the repository's copy of GTSAM's Victoria Park example,
+``tests/data/isam_victoria_park.txt.gz``; ``--file`` takes any other iSAM/GTSAM 2D file.
+
 Needs GTSAM: ``pip install dcslam[gtsam]`` (or ``pip install gtsam``).
 """
 
@@ -37,15 +40,10 @@ try:
 except ImportError:
     gtsam = None
 
-SHARED_FILE = Path("/work/shared/data/victoria_park/isam_gtsam/victoria_park.txt")
-REPO_FILE = Path(__file__).resolve().parent.parent / "tests" / "data" / "isam_victoria_park.txt.gz"
+DEFAULT_FILE = Path(__file__).resolve().parent.parent / "tests" / "data" / "isam_victoria_park.txt.gz"
 
 # Pose 0 is the frame everything is reported in; dcslam starts there with zero covariance.
 PRIOR_SIGMAS = np.array([1e-6, 1e-6, 1e-8])
-
-
-def default_file() -> Path:
-    return SHARED_FILE if SHARED_FILE.exists() else REPO_FILE
 
 
 def pose_key(pose_id: int) -> int:
@@ -305,21 +303,24 @@ def print_report(report: Dict, markdown: bool = False) -> None:
 
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--file", type=Path, default=None,
-                        help=f"iSAM/GTSAM 2D file (default {SHARED_FILE}, else {REPO_FILE.name} in the repo)")
+    parser.add_argument("--file", type=Path, default=DEFAULT_FILE,
+                        help="iSAM/GTSAM 2D file, plain or gzip (default: tests/data/isam_victoria_park.txt.gz)")
     parser.add_argument("--max-steps", type=int, default=None, help="use only the first N steps")
     parser.add_argument("--json", type=Path, default=None, help="also write the results to this JSON file")
     parser.add_argument("--no-marginals", action="store_true", help="skip timing GTSAM's landmark marginals")
     parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
     args = parser.parse_args(argv)
+    if not args.file.is_file():
+        print(f"gtsam_compare: no such file: {args.file} (pass an iSAM/GTSAM 2D file with --file)",
+              file=sys.stderr)
+        return 2
     if gtsam is None:
         print("gtsam_compare: GTSAM is not installed; install it with 'pip install dcslam[gtsam]' "
               "(or 'pip install gtsam').", file=sys.stderr)
         return 2
     if args.max_steps is not None and args.max_steps < 1:
         parser.error("--max-steps must be at least 1")
-    path = args.file if args.file is not None else default_file()
-    report = compare(path, args.max_steps, marginals=not args.no_marginals)
+    report = compare(args.file, args.max_steps, marginals=not args.no_marginals)
     print_report(report, markdown=args.markdown)
     if args.json is not None:
         args.json.write_text(json.dumps(report, indent=2) + "\n")

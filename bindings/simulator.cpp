@@ -15,7 +15,7 @@ namespace dcslam::bindings {
 namespace {
 
 // A read-only numpy view of memory owned by the Simulation behind `owner` (zero copy: the
-// whole run crosses into Python once, DESIGN.md §9).
+// whole run crosses into Python once, docs/design.md §9).
 template <class T>
 py::array view(const T* data, std::vector<py::ssize_t> shape, const py::capsule& owner) {
   py::array array(py::dtype::of<T>(), std::move(shape), {}, data, owner);

@@ -198,7 +198,7 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
   update_paired(z, R);
   if (association_ && !paired_measurements_.empty()) association_->map_updated(map_);
 
-  // New features come from the robot as updated by the paired measurements (DESIGN.md §3).
+  // New features come from the robot as updated by the paired measurements (docs/design.md §3.3).
   std::vector<std::int64_t> assigned(m, -1);
   touched_.clear();
   StepStats& step = current_step();

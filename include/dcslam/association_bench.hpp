@@ -1,5 +1,5 @@
 #pragma once
-// Cost of a join's data association against the size of the maps joined (DESIGN.md §6, §9):
+// Cost of a join's data association against the size of the maps joined (docs/design.md §6, §9):
 // RJC, JCBB over the whole overlap, and the all-pairs individual compatibility that the
 // spatial hash avoids. Meant to be called from dcslam_bench; no time is asserted anywhere.
 #include <cstdint>

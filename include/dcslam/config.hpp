@@ -1,5 +1,5 @@
 #pragma once
-// The configuration of a SLAM run (API.md's SlamConfig), as a plain struct. The Python
+// The configuration of a SLAM run (docs/api.md's SlamConfig), as a plain struct. The Python
 // dataclass dcslam.SlamConfig mirrors it field for field.
 #include <cstdint>
 #include <string>
@@ -59,8 +59,9 @@ struct SlamConfig {
   // D&C: run joins on a background worker thread instead (the multi-core form of the
   // amortized schedule); results are bitwise identical to immediate and amortized joins.
   bool threaded_joins = false;
-  // D&C: keep the robot pose at every local-map boundary in the joined map (DESIGN.md §4.5), as
-  // past poses with their full covariance (Estimate::past_poses); the EKF keeps none.
+  // D&C: keep the robot pose at every local-map boundary in the joined map
+  // (docs/design.md §4.5), as past poses with their full covariance (Estimate::past_poses);
+  // the EKF keeps none.
   bool keep_local_map_poses = false;
 
   // Throws InvalidArgument naming the first field that is out of range.

@@ -1,5 +1,5 @@
 #pragma once
-// Data association of one scan against an EKF map (DESIGN.md §3; docs/data_association.md,
+// Data association of one scan against an EKF map (docs/design.md §3.4; docs/data_association.md,
 // "Association inside the EKF"): candidates from a spatial hash of the feature means, the
 // 2-dof individual compatibility gate, then nearest neighbour or JCBB over an EKF
 // PairingModel whose every covariance block costs O(1).

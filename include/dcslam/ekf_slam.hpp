@@ -1,5 +1,5 @@
 #pragma once
-// The sparse-aware EKF SLAM of DESIGN.md §3: one stochastic map (x, P) in the frame of the
+// The sparse-aware EKF SLAM of docs/design.md §3: one stochastic map (x, P) in the frame of the
 // first pose, predicted and updated in O(n) per step except the one O(n^2) covariance update,
 // done as a single symmetric rank-k update. It is both the baseline filter (dcslam.EkfSlam)
 // and the builder of DCSlam's local maps.

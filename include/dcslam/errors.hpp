@@ -1,6 +1,6 @@
 #pragma once
 // Error types of the library. Everything derives from std::invalid_argument so that the
-// Python bindings map it to ValueError (pybind11's default translation), as API.md requires.
+// Python bindings map it to ValueError (pybind11's default translation), as docs/api.md requires.
 #include <stdexcept>
 #include <string>
 

@@ -1,7 +1,7 @@
 #pragma once
-// A stochastic map (x, P) of DESIGN.md §2: x = [robot pose (3); f_1 (2); ...; f_n (2);
+// A stochastic map (x, P) of docs/design.md §2: x = [robot pose (3); f_1 (2); ...; f_n (2);
 // q_1 (3); ...; q_m (3)] in the map's base frame, P its full, dense, symmetric covariance. The
-// q_k are past robot poses (DESIGN.md §4.5: kept at local-map boundaries by D&C joins with
+// q_k are past robot poses (docs/design.md §4.5: kept at local-map boundaries by D&C joins with
 // JoinOptions::keep_first_robot), oldest first, each with an id (the step it was recorded at).
 // Only join results hold past poses: a map that grows (EKF, local maps) holds none, so the
 // features stay at fixed offsets whatever the number of poses. Storage keeps capacity headroom

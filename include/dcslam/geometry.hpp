@@ -1,6 +1,6 @@
 #pragma once
-// 2D geometry of DESIGN.md §2: pose compounding (⊕), inversion (⊖), pose ⊕ point and angle
-// wrapping, each with analytic Jacobians (optional outputs: pass nullptr to skip them).
+// 2D geometry of docs/design.md §2: pose compounding (⊕), inversion (⊖), pose ⊕ point and
+// angle wrapping, each with analytic Jacobians (optional outputs: pass nullptr to skip them).
 // Poses are (x, y, phi), angles in radians wrapped to (-pi, pi].
 #include <Eigen/Core>
 

@@ -1,7 +1,7 @@
 #pragma once
-// Validation of the inputs of SlamFilter::predict and SlamFilter::update (API.md rules),
-// shared by EkfSlam and DCSlam. Each check throws InvalidArgument whose message names the
-// function and the argument, e.g. "update: argument 'R'[3] is not positive definite".
+// Validation of the inputs of SlamFilter::predict and SlamFilter::update (the input rules of
+// docs/api.md), shared by EkfSlam and DCSlam. Each check throws InvalidArgument whose message
+// names the function and the argument, e.g. "update: argument 'R'[3] is not positive definite".
 // Filters call them before touching any state, so a rejected call leaves the filter unchanged.
 #include <cstdint>
 #include <vector>

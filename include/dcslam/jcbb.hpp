@@ -1,8 +1,9 @@
 #pragma once
 // Data association by Joint Compatibility Branch and Bound (Neira & Tardós 2001) and the
-// simpler individual-compatibility / nearest-neighbour rules (DESIGN.md §3), generic over how
-// innovations and their covariances are computed: an EKF step pairs scan measurements with
-// map features, a map join pairs features of the second map with features of the first.
+// simpler individual-compatibility / nearest-neighbour rules (docs/design.md §3.4), generic
+// over how innovations and their covariances are computed: an EKF step pairs scan
+// measurements with map features, a map join pairs features of the second map with features
+// of the first.
 #include <cstdint>
 #include <utility>
 #include <vector>

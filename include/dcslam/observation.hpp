@@ -1,5 +1,5 @@
 #pragma once
-// Observation models of DESIGN.md §2: a point feature seen from a sensor mounted at a fixed
+// Observation models of docs/design.md §2: a point feature seen from a sensor mounted at a fixed
 // offset x_RS on the robot, either as range–bearing (r, beta) or as a Cartesian point (x, y)
 // in the sensor frame. Each has its Jacobians and an inverse (feature initialisation).
 #include "dcslam/geometry.hpp"

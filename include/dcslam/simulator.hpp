@@ -1,5 +1,5 @@
 #pragma once
-// The simulated experiments of Paz et al. 2007 (§III.B, Fig. 3; DESIGN.md §7): a uniform
+// The simulated experiments of Paz et al. 2007 (§III.B, Fig. 3; docs/design.md §7): a uniform
 // random field of point features, a robot that moves 1 m a step along one of four
 // trajectories (straight, square loop, lawn mowing, snail), noisy odometry and a noisy
 // range–bearing (or Cartesian point) sensor, with ground truth for poses, features and the
@@ -50,7 +50,7 @@ struct SimulationConfig {
   // Odometry noise (along, across, heading), standard deviations in m, m, rad.
   Vec3 odometry_sigma{0.10, 0.05, 0.5 * 3.14159265358979323846 / 180.0};
   // Forces the heading sigma to zero: known headings make the problem linear with "point"
-  // observations, where D&C must equal the EKF exactly (DESIGN.md §4).
+  // observations, where D&C must equal the EKF exactly (docs/design.md §4.7).
   bool zero_heading_noise = false;
 
   // Sensor.

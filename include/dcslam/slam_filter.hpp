@@ -1,5 +1,5 @@
 #pragma once
-// The interface shared by EkfSlam and DCSlam (API.md: "dcslam.EkfSlam(cfg) has the same
+// The interface shared by EkfSlam and DCSlam (docs/api.md: "dcslam.EkfSlam(cfg) has the same
 // interface"). The Python wrappers are written once against it.
 #include <cstdint>
 #include <map>

@@ -1,8 +1,8 @@
 #pragma once
-// A uniform grid over 2D points for candidate search (DESIGN.md §3 and §6): items are bucketed
-// by the integer coordinates of the cell that holds them, so that a query around a point only
-// visits the cells that overlap its disc or box. With bounded density every operation is O(1)
-// and a query is O(cells touched + items in them).
+// A uniform grid over 2D points for candidate search (docs/design.md §3.4 and §6): items are
+// bucketed by the integer coordinates of the cell that holds them, so that a query around a
+// point only visits the cells that overlap its disc or box. With bounded density every
+// operation is O(1) and a query is O(cells touched + items in them).
 #include <cstdint>
 #include <unordered_map>
 #include <vector>

@@ -1,8 +1,8 @@
 #pragma once
 // Victoria Park (ACFR): the Ackermann vehicle model that turns the 40 Hz wheel odometry into
 // one relative motion (u, Q) per laser scan, and the tree detections into range–bearing
-// measurements of the trunk centres in the laser frame. Facts about the data are in
-// shared/data/victoria_park/README.md; the choices made here are in docs/victoria_park.md.
+// measurements of the trunk centres in the laser frame. The data and the choices made here
+// are described in docs/victoria_park.md.
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -30,7 +30,8 @@ struct AckermannVehicle {
 enum class Steering { Raw, Recalibrated };
 Steering parse_steering(const std::string& name, const char* field);
 
-// ACFR's ASCII release recalibrated the steering; README: DRS ≈ 1.059·raw + 0.0026 rad.
+// ACFR's ASCII release recalibrated the steering: DRS ≈ 1.059·raw + 0.0026 rad
+// (docs/victoria_park.md, "The data").
 double recalibrated_steering(double raw_steering);
 
 struct OdometryNoise {

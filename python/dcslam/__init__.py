@@ -1,7 +1,8 @@
 """dcslam: Divide and Conquer EKF SLAM with data association in linear time.
 
 Implements Paz, Guivant, Tardós, Neira, "Data Association in O(n) for Divide and Conquer
-SLAM", RSS 2007. See the README and ``API.md`` for the public surface.
+SLAM", RSS 2007. The public surface is described in ``docs/api.md``, the algorithms and
+decisions in ``docs/design.md``.
 """
 
 from ._version import __version__

@@ -66,12 +66,12 @@ class SlamConfig:
             imposes the pairs exactly. 0 (default): the maps' covariances alone. Victoria
             Park's config sets it from the data (docs/victoria_park.md).
         seed: every random choice is reproducible from it.
-        amortize: D&C spreads each join over the following steps (DESIGN.md §5).
+        amortize: D&C spreads each join over the following steps (docs/design.md §5.3).
         threaded_joins: D&C runs joins on a background thread while mapping goes on
             (same result as ``amortize``; uses a second core).
         keep_local_map_poses: D&C keeps the robot pose at every local-map boundary in the
             map, with its covariance: ``Estimate.past_poses``, ``past_pose_ids`` and
-            ``joint_covariance`` (DESIGN.md §4.5). No effect on :class:`~dcslam.EkfSlam`.
+            ``joint_covariance`` (docs/design.md §4.5). No effect on :class:`~dcslam.EkfSlam`.
     """
 
     observation: str = "range_bearing"

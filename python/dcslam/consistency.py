@@ -1,4 +1,4 @@
-"""Filter consistency against ground truth (Paz et al. 2007, §III.C; DESIGN.md §7).
+"""Filter consistency against ground truth (Paz et al. 2007, §III.C; docs/design.md §7).
 
 The Normalized Estimation Error Squared of an estimate ``(x, P)`` of the true ``x*`` is
 ``D^2 = (x - x*)' P^-1 (x - x*)``. The estimate passes the chi-squared test when

@@ -4,9 +4,9 @@ Each reader converts a whole file in one C++ call into flat numpy arrays; the st
 ``.steps`` are light views into those arrays. Malformed files raise
 :class:`dcslam.ParseError` (a ``ValueError``) naming the file, the line and the field.
 
-Conventions (DESIGN.md §2): ``u`` is the relative motion ``x_{R(k-1) R(k)}`` of the robot
-frame, ``Q`` its covariance; measurements ``z`` are (m, 2) with one covariance ``R`` (2, 2)
-each. See ``docs/victoria_park.md`` for the Victoria Park vehicle model and noise choices.
+Conventions (docs/design.md §2): ``u`` is the relative motion ``x_{R(k-1) R(k)}`` of the
+robot frame, ``Q`` its covariance; measurements ``z`` are (m, 2) with one covariance ``R``
+(2, 2) each. See ``docs/victoria_park.md`` for the Victoria Park vehicle model and noise choices.
 """
 
 from __future__ import annotations
@@ -41,7 +41,8 @@ VICTORIA_PARK_DEFAULTS = dict(
     floor_sigma_phi=0.002,
 )
 
-# Heading that lines dead reckoning up with GPS over the first 120 s (README), per steering.
+# Heading that lines dead reckoning up with GPS over the first 120 s, per steering
+# (docs/victoria_park.md, "The data").
 _INITIAL_HEADING_DEG = {"raw": 33.75, "recalibrated": 34.5}
 
 

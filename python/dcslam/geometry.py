@@ -1,4 +1,4 @@
-"""2D geometry with analytic Jacobians (DESIGN.md §2).
+"""2D geometry with analytic Jacobians (docs/design.md §2).
 
 Poses are ``(x, y, phi)``, points ``(x, y)``, angles in radians wrapped to (-pi, pi].
 Every function takes ``jacobians=True`` to also return its Jacobians with respect to each

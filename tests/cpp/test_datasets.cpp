@@ -1,5 +1,5 @@
 // Dataset layer: line reader (plain, gzip, truncated gzip), CSV errors, the Victoria Park
-// vehicle model (Jacobians, Monte Carlo covariance, README totals) and the iSAM 2D reader.
+// vehicle model (Jacobians, Monte Carlo covariance, the data's totals) and the iSAM 2D reader.
 #include <gtest/gtest.h>
 #include <zlib.h>
 

@@ -15,10 +15,10 @@ namespace {
 
 using Index = Eigen::Index;
 
-// A linear-Gaussian run (DESIGN.md §4): Cartesian point observations and a known heading
+// A linear-Gaussian run (docs/design.md §4.7): Cartesian point observations and a known heading
 // (zero heading variance), so the EKF and D&C must agree exactly. The robot drives a
 // rounded square loop twice over a grid of landmarks, closing the loop. Noise is the paper's
-// (DESIGN.md §7): odometry sigma 0.10 m along and 0.05 m across; the point sensor's sigma is
+// (docs/design.md §7): odometry sigma 0.10 m along and 0.05 m across; the point sensor's sigma is
 // that of a range of 5 % and a bearing of 1 degree at 2 m (0.10 m along the beam, 0.05 m
 // across it). With the 1.5 m grid spacing this keeps joins without ids unambiguous: the pair
 // standard deviation at a join is at most about 0.15 m, so the 0.99 gate (3.03 sigma) of a

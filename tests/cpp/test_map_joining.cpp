@@ -113,7 +113,7 @@ GaussianMap select(const JoinedOrder& order, const Eigen::VectorXd& y, const Eig
   return out;
 }
 
-// The textbook join of DESIGN.md §4, dense: stack, move m2 (robot, features and past poses)
+// The textbook join of docs/design.md §4, dense: stack, move m2 (robot, features and past poses)
 // with the full Jacobian, impose the matched pairs with an EKF update (S = H P H', no R), then
 // keep the rows joined_order() lists (marginalising = deleting rows and columns of the
 // updated P): R1 goes unless kept, so do the matched f'_j and the dropped tentative features.
@@ -677,7 +677,7 @@ TEST(JoinFrame, LinearisedElsewhereGivesTheLinearisedMeansAndCovariance) {
 }
 
 // ---------------------------------------------------------------------------------------
-// Past poses (DESIGN.md §4.5): both maps already hold some, R1 is kept or not. The textbook
+// Past poses (docs/design.md §4.5): both maps already hold some, R1 is kept or not. The textbook
 // oracle moves m2's poses into B1 like its robot, never constrains them, and keeps
 // [R2' | F1 | F2' | Q1 | R1 | Q2'].
 struct PosesCase {

@@ -15,7 +15,7 @@ SENSOR_RANGE = 3.0
 
 
 def field_scenario(seed, laps=2, side=12, clutter=0.10, odometry_scale=1.0, density=0.55):
-    """DESIGN.md §7's simulator in miniature: a uniform field of point landmarks, the robot
+    """docs/design.md §7's simulator in miniature: a uniform field of point landmarks, the robot
     driving a square loop `laps` times at 1 m a step, range-bearing sensor of 3 m (sigma 5 % of
     the range, 1 deg), odometry sigma (0.10 m along, 0.05 m across, 0.5 deg) x odometry_scale,
     and `clutter` spurious measurements per true one, uniform over the sensor's disc."""

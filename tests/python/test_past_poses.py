@@ -1,5 +1,5 @@
 """keep_local_map_poses: the D&C map keeps the robot pose at every local-map boundary
-(DESIGN.md §4.5), exposed as Estimate.past_poses, past_pose_ids and joint_covariance."""
+(docs/design.md §4.5), exposed as Estimate.past_poses, past_pose_ids and joint_covariance."""
 
 import numpy as np
 import pytest
@@ -50,7 +50,7 @@ def test_past_poses_are_the_local_map_boundaries(amortize, threaded):
     m, n = len(expected), len(est.landmarks)
     assert est.past_poses.shape == (m, 3) and est.past_poses.dtype == np.float64
     assert est.joint_covariance.shape == (3 + 2 * n + 3 * m, 3 + 2 * n + 3 * m)
-    # API.md's covariance is unchanged: the [robot, landmarks] block, a view of the joint one.
+    # docs/api.md's covariance is unchanged: the [robot, landmarks] block, a view of the joint one.
     assert est.covariance.shape == (3 + 2 * n, 3 + 2 * n)
     assert np.shares_memory(est.covariance, est.joint_covariance)
     np.testing.assert_array_equal(est.covariance, est.joint_covariance[: 3 + 2 * n, : 3 + 2 * n])
