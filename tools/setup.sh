@@ -44,9 +44,14 @@ if ! "$PY" -c "import scikit_build_core, pybind11, cmake, ninja, pytest, scipy, 
     numpy "typer>=0.9" "rich>=13" "matplotlib>=3.6" pytest scipy
 fi
 
+# The development build is tuned for this machine and strict about warnings; the defaults
+# (all three off) are for portable user builds.
 echo "setup: building dcslam (build/dev)"
 "$PY" -m pip install -q --no-build-isolation --no-deps -e . \
   -Cbuild-dir=build/dev \
   -Ccmake.define.DCSLAM_BUILD_TESTS=ON \
-  -Ccmake.define.DCSLAM_BUILD_BENCH=ON
+  -Ccmake.define.DCSLAM_BUILD_BENCH=ON \
+  -Ccmake.define.DCSLAM_NATIVE=ON \
+  -Ccmake.define.DCSLAM_LTO=ON \
+  -Ccmake.define.DCSLAM_WERROR=ON
 export PATH="$DCSLAM_ROOT/.venv/bin:$PATH"
