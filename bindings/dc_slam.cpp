@@ -13,6 +13,18 @@ namespace dcslam::bindings {
 
 namespace {
 
+py::dict pairing_dict(const JoinPairingRecord& pairing) {
+  py::dict record;
+  record["first_ids"] = pairing.first_ids;
+  record["second_ids"] = pairing.second_ids;
+  record["pairs"] = pairing.pairs;
+  record["truth_pairs"] = pairing.truth_pairs;
+  record["truth_distance_sq"] = pairing.truth_distance_sq;
+  record["truth_candidate"] = std::vector<bool>(pairing.truth_candidate.begin(), pairing.truth_candidate.end());
+  record["truth_consistent"] = std::vector<bool>(pairing.truth_consistent.begin(), pairing.truth_consistent.end());
+  return record;
+}
+
 py::dict join_event_dict(const JoinEvent& event) {
   py::dict out;
   out["index"] = event.index;
@@ -68,17 +80,13 @@ void define_dc_slam(py::module_& m) {
       .def("join_pairings",
            [](const DCSlam& slam) {
              py::list out;
-             for (const JoinEvent& event : slam.joins()) {
-               py::dict record;
-               record["first_ids"] = event.pairing.first_ids;
-               record["second_ids"] = event.pairing.second_ids;
-               record["pairs"] = event.pairing.pairs;
-               record["truth_pairs"] = event.pairing.truth_pairs;
-               record["truth_distance_sq"] = event.pairing.truth_distance_sq;
-               record["truth_candidate"] = std::vector<bool>(event.pairing.truth_candidate.begin(), event.pairing.truth_candidate.end());
-               record["truth_consistent"] = std::vector<bool>(event.pairing.truth_consistent.begin(), event.pairing.truth_consistent.end());
-               out.append(record);
-             }
+             for (const JoinEvent& event : slam.joins()) out.append(pairing_dict(event.pairing));
+             return out;
+           })
+      .def("fold_pairings",
+           [](const DCSlam& slam) {
+             py::list out;
+             for (const JoinPairingRecord& record : slam.fold_pairings()) out.append(pairing_dict(record));
              return out;
            })
       .def("stack_shape", &DCSlam::stack_shape)

@@ -476,12 +476,14 @@ Estimate DCSlam::estimate() const {
   // Tentative features all stay, as in the EKF's estimate: the maps after them may not have
   // had their chance to confirm them yet (and resolve() still points at them).
   IdAliases aliases;
+  std::vector<JoinPairingRecord> fold;
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     const int index = -1 - static_cast<int>(it - stack.rbegin());
     NodeMap first = materialize(*it, aliases, leaves);
     MapJoin join(first.map, std::move(joined), join_options(index, (*it)->robot_id));
     join.finish();  // releases its inputs: at most the inputs and the result are alive
     record_merges(join, aliases, leaves);
+    fold.push_back(join.pairing_record());
     joined = std::make_shared<GaussianMap>(join.take_result());
   }
   // The duplicates the joins left, pairs no join could decide (docs/data_association.md).
@@ -489,6 +491,7 @@ Estimate DCSlam::estimate() const {
   {
     std::lock_guard<std::mutex> lock(mutex_);
     estimate_aliases_ = std::move(aliases);
+    fold_pairings_ = std::move(fold);
   }
   // Means and ids first: release_covariance() moves P out without a copy and empties the map.
   Estimate estimate = to_estimate(*joined, Eigen::MatrixXd());
@@ -544,6 +547,11 @@ const RunStats& DCSlam::stats() const {
 std::vector<JoinEvent> DCSlam::joins() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return events_;
+}
+
+std::vector<JoinPairingRecord> DCSlam::fold_pairings() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return fold_pairings_;
 }
 
 std::vector<std::pair<int, std::int64_t>> DCSlam::stack_shape() const {

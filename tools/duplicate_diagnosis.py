@@ -37,6 +37,7 @@ made, the correct and the wrong ones (and of the wrong, those whose true partner
 and the true pairs left unmade by reason; the totals are split by join size.
 
 Usage: python tools/duplicate_diagnosis.py SCENARIO [--seed 0] [--filter dc|ekf] [--list] [--joins]
+       python tools/duplicate_diagnosis.py SCENARIO --seeds N [--filter dc|ekf]   (tables summed over seeds)
        (SCENARIO: a dcslam.REVISIT_SCENARIOS name or a trajectory, e.g. lawn_mowing)
 """
 
@@ -143,6 +144,9 @@ def diagnose(name: str, seed: int, filter_name: str):
     spans = join_tree(slam, leaf) if filter_name == "dc" else []
     records = {event["index"]: record for event, record in
                zip(sorted(slam.stats.joins, key=lambda j: j["index"]), slam.join_pairings())} if spans else {}
+    fold = slam.fold_pairings() if filter_name == "dc" else []
+    stack_leaves = [leaves for leaves, _ in slam._core.stack_shape()] if filter_name == "dc" else []
+    fold_first_leaves = list(np.cumsum([0] + stack_leaves[:-1])[::-1])  # top of the stack first
     index = {int(i): k for k, i in enumerate(estimate.landmark_ids)}
     gate = chi2_threshold(2, alpha=1 - config.gate_confidence)
 
@@ -166,6 +170,10 @@ def diagnose(name: str, seed: int, filter_name: str):
                      f"features, overlap {met[2]['overlap']}, {met[2]['pairings']} pairs)") if met else "final fold"
             if met:
                 reason = join_reason(records[met[2]["index"]], landmark, label)
+            elif fold:
+                # Fold k joins the k-th stack map from the top with everything after it.
+                k = next(k for k, first_leaf in enumerate(fold_first_leaves) if first_leaf <= min(leaf_a, leaf_b))
+                reason = join_reason(fold[k], landmark, label)
         distance = np.inf
         if a in index and b in index:
             ia, ib = 3 + 2 * index[a], 3 + 2 * index[b]
@@ -187,9 +195,38 @@ def join_reason(record, landmark: int, label) -> str:
         if label.get(j) != landmark:
             continue
         if paired.get(j) == i:
-            return "made"  # made there, split again later (a feature merged away elsewhere)
+            return "made there"  # another feature of the landmark split off elsewhere
         return f"{missed_reason(bool(candidate), bool(consistent))} (D^2 {distance_sq:.1f})"
     return "no true pair there (a feature of the landmark was dropped or merged elsewhere)"
+
+
+def summary(name: str, seeds, filter_name: str) -> None:
+    """The join-size and duplicate-reason tables summed over `seeds` (docs/data_association.md)."""
+    joins, reports = [], []
+    for seed in seeds:
+        _, seed_reports, seed_joins = diagnose(name, seed, filter_name)
+        joins += seed_joins
+        reports += seed_reports
+    print(f"{name}, seeds {seeds[0]}..{seeds[-1]}, {filter_name}: {len(reports)} duplicated landmarks")
+    if joins:
+        counted = ("pairable", "paired", "correct", "wrong", "missed", "failed_ic", "maps_disagree", "lost_in_search")
+        print(f"{'joins':>12s} " + " ".join(f"{k:>14s}" for k in counted))
+        for title, rows in (("<= 4 leaves", [r for r in joins if r["leaves"] <= 4]),
+                            ("> 4 leaves", [r for r in joins if r["leaves"] > 4])):
+            print(f"{title:>12s} " + " ".join(f"{sum(r[k] for r in rows):14d}" for k in counted))
+    where = collections.Counter(
+        "final fold" if r["where"] == "final fold" else "join" if r["where"].startswith("join") else r["where"]
+        for r in reports)
+    print("where they should have met: " + ", ".join(f"{k} {v}" for k, v in sorted(where.items())))
+    print_reasons(reports)
+
+
+def print_reasons(reports) -> None:
+    for title, where in (("a real join", lambda w: w.startswith("join")), ("the final fold", lambda w: w == "final fold")):
+        reasons = collections.Counter(r["reason"].split(" (")[0] for r in reports if where(r["where"]) and r["reason"])
+        if reasons:
+            print(f"why, where they should have met in {title}: "
+                  + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())))
 
 
 def main() -> None:
@@ -199,7 +236,14 @@ def main() -> None:
     parser.add_argument("--filter", choices=("dc", "ekf"), default="dc")
     parser.add_argument("--list", action="store_true", help="one line per duplicated landmark")
     parser.add_argument("--joins", action="store_true", help="score every D&C join's pairs against the truth")
+    parser.add_argument("--seeds", type=int, default=None,
+                        help="sum the summary tables over seeds 0..N-1 (instead of one seed's details)")
     args = parser.parse_args()
+    if args.seeds is not None:
+        if args.seeds < 1:
+            parser.error(f"--seeds must be at least 1, got {args.seeds}")
+        summary(args.scenario, list(range(args.seeds)), args.filter)
+        return
     scores, reports, joins = diagnose(args.scenario, args.seed, args.filter)
     if args.joins:
         keys = ("index", "leaves", "first", "second", "overlap", "pairable", "paired", "correct", "wrong",
@@ -226,9 +270,7 @@ def main() -> None:
     print(f"{'where they should have met':28s} {'compatible':>10s} {'incompatible':>12s}")
     for where in sorted({w for w, _ in table}):
         print(f"{where:28s} {table[(where, 'compatible')]:10d} {table[(where, 'incompatible')]:12d}")
-    at_joins = collections.Counter(r["reason"].split(" (")[0] for r in reports if r["where"].startswith("join"))
-    if at_joins:
-        print("at the join where they should have met: " + ", ".join(f"{k} {v}" for k, v in sorted(at_joins.items())))
+    print_reasons(reports)
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
 #pragma once
-// Divide and Conquer SLAM (DESIGN.md §5; Paz et al. 2007, Algorithm 2). Local maps are built
+// Divide and Conquer SLAM (docs/design.md §5; Paz et al. 2007, Algorithm 2). Local maps are built
 // with the sparse-aware EKF, closed at `local_map_features` features, and joined as a binary
 // tree in post-order with a stack. Joins run in one of three ways with bitwise the same
 // result:
@@ -79,6 +79,9 @@ class DCSlam : public SlamFilter {
   // The stack's shape, bottom first: local maps held by each map, and its feature count
   // (expected count for a pending join: the sum of its inputs).
   std::vector<std::pair<int, std::int64_t>> stack_shape() const;
+  // What each join of the last estimate()'s final fold saw and decided (the stack's maps,
+  // top first, each joined with everything after it), as in JoinEvent::pairing: for diagnosis.
+  std::vector<JoinPairingRecord> fold_pairings() const;
   // Blocks until every queued join is done (threaded mode) or runs them (other modes).
   void finish_joins();
   const SlamConfig& config() const { return config_; }
@@ -166,6 +169,7 @@ class DCSlam : public SlamFilter {
   // The merges of the joins the last estimate() made on copies: resolve() follows them until
   // the next predict() or update(), so that ids resolve to that estimate's landmarks.
   mutable IdAliases estimate_aliases_;
+  mutable std::vector<JoinPairingRecord> fold_pairings_;  // of the last estimate()
   bool stopping_ = false;
   bool worker_busy_ = false;
   std::thread worker_;

@@ -1,5 +1,5 @@
 #pragma once
-// Data association between the two maps of a D&C join without ids (DESIGN.md §6): candidate
+// Data association between the two maps of a D&C join without ids (docs/design.md §6): candidate
 // pairs through a spatial hash over m1's features, individual compatibility with the pair
 // covariance P_ii + P_jj - P_ij - P_ji, then JCBB over the whole overlap ("jcbb") or RJC
 // (the paper's Algorithm 3, "rjc"). The individual gate only prunes, at a tenth of the

@@ -1,8 +1,8 @@
 #pragma once
-// Map joining 2.0 (DESIGN.md §4; Paz et al. 2007 §III): join a map m1 (base B1, robot R1)
+// Map joining 2.0 (docs/design.md §4; Paz et al. 2007 §III): join a map m1 (base B1, robot R1)
 // with the next map m2 (base B2 = R1, robot R2) into one map with base B1, robot R2,
 // features (m1 \ unmatched tentative) ∪ (m2 \ matched) and past poses m1's, then R1 (if
-// kept, DESIGN.md §4.5), then m2's moved into B1: [R2' | F1 | F2' | Q1 | R1 | Q2'].
+// kept, docs/design.md §4.5), then m2's moved into B1: [R2' | F1 | F2' | Q1 | R1 | Q2'].
 //
 // The join is computed as one fused pass: the stacked covariance of [m1; m2 moved into B1]
 // is never built. Its blocks are produced on demand from P1, P2 and the Jacobians of ⊕, the
@@ -72,7 +72,7 @@ struct JoinOptions {
   // more re-linearise at the constrained estimate until the step is negligible.
   int max_iterations = 10;
   // Keep R1 in the result as a past pose with id first_robot_id (a sparse trajectory at
-  // local-map boundaries, DESIGN.md §4.5). Past poses the inputs hold are always kept.
+  // local-map boundaries, docs/design.md §4.5). Past poses the inputs hold are always kept.
   bool keep_first_robot = false;
   std::int64_t first_robot_id = -1;
   std::shared_ptr<const JoinOracle> oracle;  // research only (JoinOracle); null in real runs

@@ -1,5 +1,5 @@
 #pragma once
-// Randomized Joint Compatibility (Paz et al. 2007, Algorithm 3; DESIGN.md §6): data
+// Randomized Joint Compatibility (Paz et al. 2007, Algorithm 3; docs/design.md §6): data
 // association between the two maps of a join in time linear in the overlap, generic over the
 // same PairingModel as JCBB (measurement = feature of the second map, feature = feature of
 // the first).

@@ -1,7 +1,7 @@
 """SLAM filters: the shared :class:`SlamFilter` surface and the sparse-aware :class:`EkfSlam`.
 
 Both wrap a compiled filter (``dcslam._core``); Python crosses into C++ once per call, and
-the GIL is released while C++ works (DESIGN.md §9). A filter object is not thread-safe: call
+the GIL is released while C++ works (docs/design.md §9). A filter object is not thread-safe: call
 it from one thread at a time.
 """
 
@@ -28,7 +28,7 @@ def _no_past_pose_ids() -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True)
 class Estimate:
-    """The whole map in the frame of the first pose (API.md).
+    """The whole map in the frame of the first pose (docs/api.md).
 
     Attributes:
         robot: (3,) current robot pose (x, y, phi).
@@ -38,7 +38,7 @@ class Estimate:
             (a view of the leading block of ``joint_covariance``).
         past_poses: (m, 3) past robot poses (x, y, phi), oldest first: with
             ``SlamConfig.keep_local_map_poses``, :class:`DCSlam` keeps the pose at every
-            local-map boundary (DESIGN.md §4.5); (0, 3) otherwise and for :class:`EkfSlam`.
+            local-map boundary (docs/design.md §4.5); (0, 3) otherwise and for :class:`EkfSlam`.
         past_pose_ids: (m,) int64, the step of each past pose: the number of ``predict``
             calls made before it (so ``sim.poses[past_pose_ids]`` are their true poses).
         joint_covariance: (3 + 2n + 3m, 3 + 2n + 3m) covariance of [robot, lm 0, ...,
@@ -99,7 +99,7 @@ class SlamStats:
 
 
 class SlamFilter:
-    """The interface of :class:`EkfSlam` and :class:`~dcslam.DCSlam` (API.md).
+    """The interface of :class:`EkfSlam` and :class:`~dcslam.DCSlam` (docs/api.md).
 
     Subclasses build the compiled filter and pass it to ``__init__``.
     """
@@ -115,7 +115,7 @@ class SlamFilter:
     def predict(self, u, Q) -> None:
         """Moves the robot by ``u`` (3,), the relative motion x_{R(k-1)R(k)}, with covariance Q.
 
-        ``x_R <- x_R ⊕ u``, ``P_RR <- F P_RR F' + G Q G'``, ``P_RM <- F P_RM`` (DESIGN.md §3).
+        ``x_R <- x_R ⊕ u``, ``P_RR <- F P_RR F' + G Q G'``, ``P_RM <- F P_RM`` (docs/design.md §3.1).
         Q (3, 3) must be symmetric positive semi-definite; a zero variance (e.g. a known
         heading) is legal. Opens a new step in :attr:`stats`.
         """
@@ -136,7 +136,7 @@ class SlamFilter:
             (m,) int64: the feature id each measurement went to (a new id when it started a
             feature, -1 when rejected).
 
-        Paired measurements are applied jointly (DESIGN.md §3: ``S = H P H' + R``,
+        Paired measurements are applied jointly (docs/design.md §3.2: ``S = H P H' + R``,
         ``K = P H' S^-1``, covariance downdate as one symmetric rank-2k update); new
         features are then initialised from the updated robot (``f = g(x_R, z)``). Invalid
         input raises ``ValueError`` naming the argument and leaves the filter unchanged.
@@ -185,7 +185,7 @@ class SlamFilter:
 
 
 class EkfSlam(SlamFilter):
-    """Sparse-aware EKF SLAM on one map (DESIGN.md §3; Paz et al. 2007, §II).
+    """Sparse-aware EKF SLAM on one map (docs/design.md §3; Paz et al. 2007, §II).
 
     Cost per step O(n) except the covariance downdate, O(n^2), done in one pass over one
     triangle of P. Data association (``cfg.association``):
@@ -241,7 +241,7 @@ class DCSlamStats(SlamStats):
 
 
 class DCSlam(SlamFilter):
-    """Divide and Conquer SLAM (Paz et al. 2007, Algorithm 2; DESIGN.md §4-§5).
+    """Divide and Conquer SLAM (Paz et al. 2007, Algorithm 2; docs/design.md §4-§5).
 
     Local maps of ``cfg.local_map_features`` features are built with the sparse-aware EKF
     and joined as a binary tree with map joining 2.0; the result is the EKF's answer (exact
@@ -287,17 +287,14 @@ class DCSlam(SlamFilter):
         candidate lists, and ``truth_consistent`` (t,) bool, whether it passes the decision
         gate given the more certain true pairs (taken in increasing distance): a true pair
         that is not consistent is one the two maps disagree about. Empty without an oracle."""
-        records = []
-        for record in self._core.join_pairings():
-            records.append(dict(
-                first_ids=np.asarray(record["first_ids"], dtype=np.int64),
-                second_ids=np.asarray(record["second_ids"], dtype=np.int64),
-                pairs=np.asarray(record["pairs"], dtype=np.int64).reshape(-1, 2),
-                truth_pairs=np.asarray(record["truth_pairs"], dtype=np.int64).reshape(-1, 2),
-                truth_distance_sq=np.asarray(record["truth_distance_sq"], dtype=float),
-                truth_candidate=np.asarray(record["truth_candidate"], dtype=bool),
-                truth_consistent=np.asarray(record["truth_consistent"], dtype=bool)))
-        return records
+        return [_pairing_record(record) for record in self._core.join_pairings()]
+
+    def fold_pairings(self) -> list:
+        """What each join of the last :meth:`estimate`'s final fold saw and decided, as
+        :meth:`join_pairings` does for the real joins: the stack's maps, top first, each joined
+        with everything after it (the current local map first). Empty before the first
+        ``estimate()``."""
+        return [_pairing_record(record) for record in self._core.fold_pairings()]
 
     def set_join_oracle(self, feature_ids, landmark_ids, mode: str = "truth") -> None:
         """A research instrument, never for a real run: corrects every join's association with
@@ -327,3 +324,15 @@ class DCSlam(SlamFilter):
     def finish_joins(self) -> None:
         """Completes every queued join now (waits for the worker in threaded mode)."""
         self._core.finish_joins()
+
+
+def _pairing_record(record: dict) -> dict:
+    """A join's pairing record from the compiled module, as numpy arrays."""
+    return dict(
+        first_ids=np.asarray(record["first_ids"], dtype=np.int64),
+        second_ids=np.asarray(record["second_ids"], dtype=np.int64),
+        pairs=np.asarray(record["pairs"], dtype=np.int64).reshape(-1, 2),
+        truth_pairs=np.asarray(record["truth_pairs"], dtype=np.int64).reshape(-1, 2),
+        truth_distance_sq=np.asarray(record["truth_distance_sq"], dtype=float),
+        truth_candidate=np.asarray(record["truth_candidate"], dtype=bool),
+        truth_consistent=np.asarray(record["truth_consistent"], dtype=bool))

@@ -58,6 +58,13 @@ def expected_pair_count(record, label):
     return sum(min(count, first[landmark]) for landmark, count in second.items() if landmark >= 0)
 
 
+def shared_landmarks(record, label):
+    """The oracle pairs each landmark held by both maps once (one of its features per map)."""
+    first = {label.get(i, -1) for i in record["first_ids"].tolist()}
+    second = {label.get(j, -1) for j in record["second_ids"].tolist()}
+    return len((first & second) - {-1})
+
+
 def test_truth_oracle_pairs_exactly_the_features_of_one_landmark(scene):
     sim, _, returned, label, oracle = scene
     slam, returned_again = run(sim, (*oracle, "truth"))
@@ -112,7 +119,7 @@ def test_audit_changes_nothing_and_records_the_true_pairs(scene):
         np.testing.assert_array_equal(record["pairs"], plain["pairs"])
         assert len(plain["truth_pairs"]) == 0  # no oracle, no audit
         truth = record["truth_pairs"]
-        assert len(truth) == expected_pair_count(record, label)
+        assert len(truth) == shared_landmarks(record, label)
         for i, j in truth.tolist():
             assert label[i] == label[j] >= 0
         distance = record["truth_distance_sq"]
@@ -138,3 +145,22 @@ def test_audit_of_a_truth_run_marks_every_pair_made():
     for record in slam.join_pairings():
         made = {(int(i), int(j)) for i, j in record["pairs"]}
         assert made == {(int(i), int(j)) for i, j in record["truth_pairs"]}
+
+
+def test_fold_pairings_record_the_final_fold(scene):
+    sim, _, returned, label, oracle = scene
+    slam, _ = run(sim, (*oracle, "audit"))
+    assert slam.fold_pairings() == []  # no estimate() yet
+    estimate = slam.estimate()
+    fold = slam.fold_pairings()
+    assert len(fold) == len(slam._core.stack_shape()) > 0
+    for record in fold:
+        assert set(record["pairs"][:, 0]) <= set(record["first_ids"].tolist())
+        assert set(record["pairs"][:, 1]) <= set(record["second_ids"].tolist())
+        assert len(record["truth_pairs"]) == shared_landmarks(record, label)
+    # Each fold joins the next stack map with everything after it: the last one holds the map.
+    last = fold[-1]
+    joined = len(last["first_ids"]) + len(last["second_ids"]) - len(last["pairs"])
+    merged = joined - len(estimate.landmark_ids)  # the estimate's duplicate merge comes after
+    assert 0 <= merged < 0.1 * joined
+    assert set(estimate.landmark_ids.tolist()) <= set(last["first_ids"].tolist()) | set(last["second_ids"].tolist())
