@@ -154,6 +154,7 @@ void DCSlam::end_step(double seconds) {
 }
 
 void DCSlam::predict(const Vec3& u, const Mat3& Q) {
+  throw_if_a_join_failed();
   const auto start = Clock::now();
   local_->predict(u, Q);  // validates first: a bad call changes nothing
   forget_estimate_aliases();
@@ -164,6 +165,7 @@ void DCSlam::predict(const Vec3& u, const Mat3& Q) {
 
 std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::vector<Mat2>& R,
                                          const std::vector<std::int64_t>* landmark_ids) {
+  throw_if_a_join_failed();
   const auto start = Clock::now();
   std::vector<std::int64_t> ids = local_->update(z, R, landmark_ids);
   forget_estimate_aliases();
@@ -215,7 +217,8 @@ void DCSlam::close_local_map() {
   ++closed_local_maps_;
   push_and_merge(std::move(node));
   if (!config_.amortize && !config_.threaded_joins) {
-    for (const auto& task : queue_) work_on(*task, std::numeric_limits<std::int64_t>::max());
+    const auto tasks = queue_;  // a failing join empties queue_ (record_join_failure())
+    for (const auto& task : tasks) work_on(*task, std::numeric_limits<std::int64_t>::max());
     queue_.clear();
   }
 }
@@ -316,14 +319,35 @@ void DCSlam::run_amortized_budget() {
 }
 
 std::int64_t DCSlam::work_on(JoinTask& task, std::int64_t budget) {
-  if (!task.join) {
-    task.join = make_join(NodeMap{task.left->map, task.left->tentative},
-                          NodeMap{task.right->map, task.right->tentative}, *task.left,
-                          *task.right, task.index);
+  try {
+    if (!task.join) {
+      task.join = make_join(NodeMap{task.left->map, task.left->tentative},
+                            NodeMap{task.right->map, task.right->tentative}, *task.left,
+                            *task.right, task.index);
+    }
+    const std::int64_t spent = task.join->advance(budget);
+    if (task.join->done()) complete(task);
+    return spent;
+  } catch (const std::exception& error) {
+    record_join_failure(task, error);
+    throw_if_a_join_failed();
+    throw;  // not reached
   }
-  const std::int64_t spent = task.join->advance(budget);
-  if (task.join->done()) complete(task);
-  return spent;
+}
+
+void DCSlam::record_join_failure(const JoinTask& task, const std::exception& error) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!join_failure_.empty()) return;
+  const JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
+  join_failure_ = "DCSlam: join " + std::to_string(task.index) + " (" + std::to_string(event.leaves) +
+                  " local maps, queued at step " + std::to_string(event.step_created) +
+                  ") failed: " + error.what() + "; this filter cannot go on";
+  queue_.clear();  // the joins after it need its result
+}
+
+void DCSlam::throw_if_a_join_failed() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!join_failure_.empty()) throw InvalidArgument(join_failure_);
 }
 
 std::unique_ptr<MapJoin> DCSlam::make_join(const NodeMap& first, const NodeMap& second,
@@ -402,13 +426,23 @@ void DCSlam::worker_loop() {
       std::unique_lock<std::mutex> lock(mutex_);
       work_ready_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
       if (stopping_) return;
+      if (!join_failure_.empty()) {
+        // Joins queued after a failure may need the failed join's result: none of them runs.
+        queue_.clear();
+        work_done_.notify_all();
+        continue;
+      }
       task = queue_.front();
       worker_busy_ = true;
     }
-    work_on(*task, std::numeric_limits<std::int64_t>::max());
+    try {
+      work_on(*task, std::numeric_limits<std::int64_t>::max());
+    } catch (const std::exception&) {
+      // Recorded by work_on(), which emptied the queue; the caller's next call raises it.
+    }
     {
       std::lock_guard<std::mutex> lock(mutex_);
-      queue_.pop_front();
+      if (!queue_.empty() && queue_.front() == task) queue_.pop_front();
       worker_busy_ = false;
     }
     work_done_.notify_all();
@@ -416,9 +450,13 @@ void DCSlam::worker_loop() {
 }
 
 void DCSlam::finish_joins() {
+  throw_if_a_join_failed();
   if (config_.threaded_joins) {
-    std::unique_lock<std::mutex> lock(mutex_);
-    work_done_.wait(lock, [this] { return queue_.empty() && !worker_busy_; });
+    {
+      std::unique_lock<std::mutex> lock(mutex_);
+      work_done_.wait(lock, [this] { return queue_.empty() && !worker_busy_; });
+    }
+    throw_if_a_join_failed();
     return;
   }
   while (!queue_.empty()) {
@@ -463,6 +501,7 @@ void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, LeafSets& le
 }
 
 Estimate DCSlam::estimate() const {
+  throw_if_a_join_failed();
   std::vector<std::shared_ptr<Node>> stack;
   LeafSets leaves;
   {
@@ -505,6 +544,7 @@ Vec3 DCSlam::node_robot(const Node& node) const {
 }
 
 Vec3 DCSlam::pose() const {
+  throw_if_a_join_failed();
   Vec3 pose = Vec3::Zero();
   {
     std::lock_guard<std::mutex> lock(mutex_);

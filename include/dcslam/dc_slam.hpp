@@ -17,6 +17,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <exception>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -121,6 +122,12 @@ class DCSlam : public SlamFilter {
   void run_amortized_budget();
   // Advances `task` by up to `budget`; returns work done. Completes the node when finished.
   std::int64_t work_on(JoinTask& task, std::int64_t budget);
+  // A join that threw (a covariance that is not positive definite, say) leaves its task half
+  // done and the tree without its result: the failure is recorded, named, and raised as
+  // InvalidArgument by this and every later call, on whichever thread the join ran, instead
+  // of escaping a worker thread (which ends the process).
+  void record_join_failure(const JoinTask& task, const std::exception& error);
+  void throw_if_a_join_failed() const;
   void complete(JoinTask& task);
   void worker_loop();
   // Options of join `index`, whose first map's robot has pose id `first_robot_id`.
@@ -172,6 +179,7 @@ class DCSlam : public SlamFilter {
   mutable std::vector<JoinPairingRecord> fold_pairings_;  // of the last estimate()
   bool stopping_ = false;
   bool worker_busy_ = false;
+  std::string join_failure_;  // empty unless a join failed (record_join_failure())
   std::thread worker_;
 
   mutable RunStats stats_;  // counters are refreshed by stats()
