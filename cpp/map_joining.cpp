@@ -391,6 +391,10 @@ void MapJoin::finish_association() {
   pairing_record_.first_ids = m1.ids();
   pairing_record_.second_ids = m2.ids();
   pairing_record_.pairs.clear();
+  pairing_record_.truth_pairs.clear();
+  pairing_record_.truth_distance_sq.clear();
+  pairing_record_.truth_candidate.clear();
+  pairing_record_.truth_consistent.clear();
   for (const auto& [i, j] : pairs_) {
     merged_ids_.emplace_back(m2.ids()[static_cast<std::size_t>(j)],
                              m1.ids()[static_cast<std::size_t>(i)]);
