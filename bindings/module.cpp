@@ -6,6 +6,7 @@ namespace py = pybind11;
 
 namespace dcslam::bindings {
 void define_errors(py::module_& m);
+void define_chi_square(py::module_& m);
 void define_geometry(py::module_& m);
 void define_config(py::module_& m);
 void define_slam_filter(py::module_& m);
@@ -18,6 +19,7 @@ PYBIND11_MODULE(_core, m) {
   m.doc() = "dcslam's compiled core (private: use the dcslam package).";
   m.attr("__version__") = DCSLAM_VERSION;
   dcslam::bindings::define_errors(m);
+  dcslam::bindings::define_chi_square(m);
   dcslam::bindings::define_geometry(m);
   dcslam::bindings::define_config(m);
   dcslam::bindings::define_slam_filter(m);

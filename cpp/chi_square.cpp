@@ -91,27 +91,17 @@ double chi2_cdf(int dof, double x) {
   return regularized_gamma_p(0.5 * dof, 0.5 * x);
 }
 
-double chi2_quantile(int dof, double p) {
-  if (dof < 1) throw InvalidArgument("chi2_quantile: dof must be >= 1");
-  if (!(p >= 0.0 && p <= 1.0)) throw InvalidArgument("chi2_quantile: p must be in [0, 1]");
-  if (p == 0.0) return 0.0;
-  if (p == 1.0) return std::numeric_limits<double>::infinity();
-  if (dof == 2) return -2.0 * std::log1p(-p);
+namespace {
 
-  // Solve in the gamma variable x = q / 2, a = dof / 2. Above the median the equation is
-  // written on Q so that the small upper tail 1 - p is matched with relative accuracy.
-  const double a = 0.5 * dof;
-  const bool upper = p > 0.5;
-  const double target = upper ? 1.0 - p : p;
+// The x = q / 2 in the gamma variable (a = dof / 2) whose tail equals `target`: the upper tail
+// Q(a, x) when `upper`, else the lower tail P(a, x), so that a small tail is matched with
+// relative accuracy. `start` is a first guess; the bracket makes any positive guess converge.
+double gamma_tail_root(double a, bool upper, double target, double start) {
   // residual(x) increases with x in both forms.
   auto residual = [&](double x) {
     return upper ? target - regularized_gamma_q(a, x) : regularized_gamma_p(a, x) - target;
   };
-
-  const double k = 2.0 / (9.0 * dof);
-  const double cube = 1.0 - k + approximate_normal_quantile(p) * std::sqrt(k);
-  double x = cube > 0.0 ? 0.5 * dof * cube * cube * cube : 0.5 * std::pow(p, 2.0 / dof);
-
+  double x = start;
   // Bracket [lo, hi] with residual(lo) <= 0 <= residual(hi); Newton steps that leave it are
   // replaced by bisection, so the iteration converges even from a poor start.
   double lo = 0.0;
@@ -123,17 +113,61 @@ double chi2_quantile(int dof, double p) {
   if (!(x > lo && x < hi)) x = 0.5 * (lo + hi);
   for (int iteration = 0; iteration < 400; ++iteration) {
     const double f = residual(x);
-    if (f == 0.0) return 2.0 * x;
+    if (f == 0.0) return x;
     (f < 0.0 ? lo : hi) = x;
     const double density = std::exp((a - 1.0) * std::log(x) - x - std::lgamma(a));
     double next = x - f / density;
     if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
-    if (std::fabs(next - x) <= 4.0 * kEpsilon * x || hi - lo <= 4.0 * kEpsilon * hi) {
-      return 2.0 * next;
-    }
+    if (std::fabs(next - x) <= 4.0 * kEpsilon * x || hi - lo <= 4.0 * kEpsilon * hi) return next;
     x = next;
   }
-  return 2.0 * x;
+  return x;
+}
+
+// Wilson–Hilferty's start in the gamma variable, for the normal quantile z of the lower tail
+// probability; below the cube's zero (small dof, small lower tails), the series' first term.
+double wilson_hilferty_start(double dof, double z, double lower_tail) {
+  const double k = 2.0 / (9.0 * dof);
+  const double cube = 1.0 - k + z * std::sqrt(k);
+  return cube > 0.0 ? 0.5 * dof * cube * cube * cube : 0.5 * std::pow(lower_tail, 2.0 / dof);
+}
+
+}  // namespace
+
+double chi2_quantile(int dof, double p) {
+  if (dof < 1) throw InvalidArgument("chi2_quantile: dof must be >= 1");
+  if (!(p >= 0.0 && p <= 1.0)) throw InvalidArgument("chi2_quantile: p must be in [0, 1]");
+  if (p == 0.0) return 0.0;
+  if (p == 1.0) return std::numeric_limits<double>::infinity();
+  if (dof == 2) return -2.0 * std::log1p(-p);
+  const bool upper = p > 0.5;
+  const double start = wilson_hilferty_start(dof, approximate_normal_quantile(p), p);
+  return 2.0 * gamma_tail_root(0.5 * dof, upper, upper ? 1.0 - p : p, start);
+}
+
+double chi2_upper_quantile(double dof, double alpha) {
+  if (!(dof > 0.0) || !std::isfinite(dof)) {
+    throw InvalidArgument("chi2_upper_quantile: dof must be > 0 and finite, got " + std::to_string(dof));
+  }
+  if (!(alpha > 0.0 && alpha < 1.0)) {
+    throw InvalidArgument("chi2_upper_quantile: alpha must lie in (0, 1), got " + std::to_string(alpha));
+  }
+  if (dof == 2.0) return -2.0 * std::log(alpha);
+  const double a = 0.5 * dof;
+  const bool upper = alpha <= 0.5;
+  const double target = upper ? alpha : 1.0 - alpha;
+  // The normal quantile of the lower tail 1 - alpha, from whichever tail is small.
+  const double z = upper ? -approximate_normal_quantile(alpha) : approximate_normal_quantile(1.0 - alpha);
+  double start = wilson_hilferty_start(dof, z, 1.0 - alpha);
+  if (!upper) {
+    // Near 0, P(a, x) ~ x^a / Gamma(a + 1): far better for a small dof and a lower tail near 0,
+    // where the quantile can be as small as 1e-100.
+    const double series = std::exp((std::log(target) + std::lgamma(a + 1.0)) / a);
+    const auto miss = [&](double x) { return std::fabs(regularized_gamma_p(a, x) - target); };
+    if (series > 0.0 && miss(series) < miss(start)) start = series;
+  }
+  if (!(start >= std::numeric_limits<double>::min())) return 0.0;  // the quantile underflows
+  return 2.0 * gamma_tail_root(a, upper, target, start);
 }
 
 ChiSquareGate::ChiSquareGate(double confidence) : confidence_(confidence) {

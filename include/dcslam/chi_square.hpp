@@ -18,6 +18,11 @@ double chi2_cdf(int dof, double x);
 // The x with chi2_cdf(dof, x) = p: dof >= 1, 0 <= p <= 1 (p = 1 gives +inf).
 double chi2_quantile(int dof, double p);
 
+// The x with P(X > x) = alpha for X ~ chi2(dof): any real dof > 0, 0 < alpha < 1
+// (InvalidArgument otherwise), taking the upper tail itself so that a tiny alpha keeps its
+// relative accuracy; 0 where the quantile underflows. dcslam.chi2_threshold() in Python.
+double chi2_upper_quantile(double dof, double alpha);
+
 // Gate thresholds chi2_quantile(dof, confidence) at a fixed confidence, computed once per dof
 // and cached: JCBB asks for dof = 2, 4, ..., 2k over and over. Not thread-safe (the cache
 // grows on demand); give each thread its own gate.

@@ -64,6 +64,31 @@ TEST(ChiSquare, ClosedFormsAndEdges) {
   EXPECT_THROW(regularized_gamma_p(-1.0, 1.0), InvalidArgument);
 }
 
+TEST(ChiSquare, UpperQuantileInvertsTheUpperTail) {
+  // Against the tail it inverts, on real and integer dof, in both tails and far out in them.
+  for (double dof : {0.5, 1.0, 3.0, 7.5, 40.0, 1000.0}) {
+    for (double alpha : {1e-12, 1e-6, 0.01, 0.05, 0.5, 0.9, 0.999}) {
+      const double x = chi2_upper_quantile(dof, alpha);
+      const double tail = regularized_gamma_q(0.5 * dof, 0.5 * x);
+      const double lower = regularized_gamma_p(0.5 * dof, 0.5 * x);
+      if (alpha <= 0.5) {
+        EXPECT_NEAR(tail / alpha, 1.0, 1e-10) << "dof " << dof << " alpha " << alpha;
+      } else {
+        EXPECT_NEAR(lower / (1.0 - alpha), 1.0, 1e-9) << "dof " << dof << " alpha " << alpha;
+      }
+    }
+  }
+  // Closed forms: chi2(2) is exponential with mean 2; chi2(1) is a squared standard normal.
+  EXPECT_DOUBLE_EQ(chi2_upper_quantile(2.0, 1e-9), -2.0 * std::log(1e-9));
+  EXPECT_NEAR(chi2_upper_quantile(1.0, 0.05), 1.959963984540054 * 1.959963984540054, 1e-12);
+  // Where both exist, the same value as the gates' quantile.
+  EXPECT_NEAR(chi2_upper_quantile(4.0, 0.01) / chi2_quantile(4, 0.99), 1.0, 1e-13);
+  EXPECT_THROW(chi2_upper_quantile(0.0, 0.05), InvalidArgument);
+  EXPECT_THROW(chi2_upper_quantile(3.0, 0.0), InvalidArgument);
+  EXPECT_THROW(chi2_upper_quantile(3.0, 1.0), InvalidArgument);
+  EXPECT_THROW(chi2_upper_quantile(std::numeric_limits<double>::infinity(), 0.5), InvalidArgument);
+}
+
 TEST(ChiSquare, GateCachesQuantiles) {
   ChiSquareGate gate(0.95);
   EXPECT_EQ(gate.confidence(), 0.95);
