@@ -14,8 +14,20 @@ namespace {
 constexpr double kEpsilon = std::numeric_limits<double>::epsilon();
 constexpr int kMaxTerms = 100000;
 
+// ln Gamma(a) without a data race: std::lgamma also writes the global `signgam`, and the gates
+// run on the main thread and on a join worker at once (threaded_joins); glibc's and macOS's
+// lgamma_r return the same value and the sign through its argument instead.
+double log_gamma(double a) {
+#if defined(__GLIBC__) || defined(__APPLE__)
+  int sign = 0;
+  return ::lgamma_r(a, &sign);
+#else
+  return std::lgamma(a);
+#endif
+}
+
 // log(x^a e^-x / Gamma(a)): the common factor of the series and the continued fraction.
-double log_gamma_prefactor(double a, double x) { return a * std::log(x) - x - std::lgamma(a); }
+double log_gamma_prefactor(double a, double x) { return a * std::log(x) - x - log_gamma(a); }
 
 // P(a, x) by its power series; converges quickly for x < a + 1.
 double gamma_p_series(double a, double x) {
@@ -115,7 +127,7 @@ double gamma_tail_root(double a, bool upper, double target, double start) {
     const double f = residual(x);
     if (f == 0.0) return x;
     (f < 0.0 ? lo : hi) = x;
-    const double density = std::exp((a - 1.0) * std::log(x) - x - std::lgamma(a));
+    const double density = std::exp((a - 1.0) * std::log(x) - x - log_gamma(a));
     double next = x - f / density;
     if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
     if (std::fabs(next - x) <= 4.0 * kEpsilon * x || hi - lo <= 4.0 * kEpsilon * hi) return next;
@@ -162,7 +174,7 @@ double chi2_upper_quantile(double dof, double alpha) {
   if (!upper) {
     // Near 0, P(a, x) ~ x^a / Gamma(a + 1): far better for a small dof and a lower tail near 0,
     // where the quantile can be as small as 1e-100.
-    const double series = std::exp((std::log(target) + std::lgamma(a + 1.0)) / a);
+    const double series = std::exp((std::log(target) + log_gamma(a + 1.0)) / a);
     const auto miss = [&](double x) { return std::fabs(regularized_gamma_p(a, x) - target); };
     if (series > 0.0 && miss(series) < miss(start)) start = series;
   }

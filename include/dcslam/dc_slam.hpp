@@ -14,6 +14,7 @@
 // paper's feature count for exploration), and the amortized budget of a step is
 // Σ remaining_work / steps_left over the queued joins, where a join's deadline is half the
 // time until its result is next needed.
+#include <atomic>
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
@@ -157,7 +158,8 @@ class DCSlam : public SlamFilter {
   SlamConfig config_;
   std::unique_ptr<EkfSlam> local_;
   std::int64_t local_map_steps_ = 0;
-  std::int64_t steps_ = 0;
+  // Written by the front end's every step, read by a join worker when a join completes.
+  std::atomic<std::int64_t> steps_{0};
   std::int64_t predictions_ = 0;
   std::int64_t closed_local_maps_ = 0;
   std::int64_t steps_in_closed_maps_ = 0;
