@@ -329,20 +329,20 @@ std::int64_t DCSlam::work_on(JoinTask& task, std::int64_t budget) {
     if (task.join->done()) complete(task);
     return spent;
   } catch (const std::exception& error) {
-    record_join_failure(task, error);
-    throw_if_a_join_failed();
-    throw;  // not reached
+    throw InvalidArgument(record_join_failure(task, error));
   }
 }
 
-void DCSlam::record_join_failure(const JoinTask& task, const std::exception& error) {
+std::string DCSlam::record_join_failure(const JoinTask& task, const std::exception& error) {
   std::lock_guard<std::mutex> lock(mutex_);
-  if (!join_failure_.empty()) return;
-  const JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
-  join_failure_ = "DCSlam: join " + std::to_string(task.index) + " (" + std::to_string(event.leaves) +
-                  " local maps, queued at step " + std::to_string(event.step_created) +
-                  ") failed: " + error.what() + "; this filter cannot go on";
+  if (join_failure_.empty()) {
+    const JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
+    join_failure_ = "DCSlam: join " + std::to_string(task.index) + " (" + std::to_string(event.leaves) +
+                    " local maps, queued at step " + std::to_string(event.step_created) +
+                    ") failed: " + error.what() + "; this filter cannot go on";
+  }
   queue_.clear();  // the joins after it need its result
+  return join_failure_;
 }
 
 void DCSlam::throw_if_a_join_failed() const {

@@ -181,6 +181,11 @@ std::int64_t JoinAssociator::run_jcbb() {
                  (candidate_count + jcbb_result.nodes_expanded * std::max(1, jcbb_result.pairings));
 }
 
+bool JoinAssociator::is_candidate(std::size_t second, int first) const {
+  const std::vector<int>& candidates = candidates_[second];
+  return std::find(candidates.begin(), candidates.end(), first) != candidates.end();
+}
+
 std::vector<int> JoinAssociator::oracle_pairing() const {
   const JoinOracle& oracle = *options_.oracle;
   const auto landmark = [&oracle](std::int64_t id) {
@@ -212,8 +217,7 @@ void JoinAssociator::audit_oracle(const std::vector<int>& truth) {
     entry.first = truth[j];
     entry.second = static_cast<Index>(j);
     entry.distance_sq = individual_distance_sq(model_, Pairing{static_cast<int>(j), truth[j]});
-    const std::vector<int>& candidates = candidates_[j];
-    entry.candidate = std::find(candidates.begin(), candidates.end(), truth[j]) != candidates.end();
+    entry.candidate = is_candidate(j, truth[j]);
     audit.push_back(entry);
   }
   std::vector<std::size_t> by_distance;
@@ -240,12 +244,9 @@ void JoinAssociator::apply_oracle(const std::vector<int>& truth, std::vector<int
       case JoinOracle::Mode::Truth:
         feature_of[j] = truth[j];
         break;
-      case JoinOracle::Mode::AmongCandidates: {
-        const std::vector<int>& candidates = candidates_[j];
-        const bool candidate = std::find(candidates.begin(), candidates.end(), truth[j]) != candidates.end();
-        feature_of[j] = candidate ? truth[j] : kStar;
+      case JoinOracle::Mode::AmongCandidates:
+        feature_of[j] = is_candidate(j, truth[j]) ? truth[j] : kStar;
         break;
-      }
       case JoinOracle::Mode::RemoveWrong:
         if (feature_of[j] != truth[j]) feature_of[j] = kStar;
         break;

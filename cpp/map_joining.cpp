@@ -371,7 +371,13 @@ std::int64_t MapJoin::associate_next(std::int64_t budget) {
     if (!associator_->done()) return spent;
     const JoinAssociationResult& result = associator_->result();
     pairs_ = result.pairs;
-    truth_audit_ = result.truth_audit;
+    for (const JoinTruthAudit& entry : result.truth_audit) {
+      pairing_record_.truth_pairs.emplace_back(m1.ids()[static_cast<std::size_t>(entry.first)],
+                                               m2.ids()[static_cast<std::size_t>(entry.second)]);
+      pairing_record_.truth_distance_sq.push_back(entry.distance_sq);
+      pairing_record_.truth_candidate.push_back(entry.candidate ? 1 : 0);
+      pairing_record_.truth_consistent.push_back(entry.consistent ? 1 : 0);
+    }
     report_.overlap = result.overlap;
     report_.tries = result.tries;
     associator_.reset();
@@ -391,24 +397,12 @@ void MapJoin::finish_association() {
   pairing_record_.first_ids = m1.ids();
   pairing_record_.second_ids = m2.ids();
   pairing_record_.pairs.clear();
-  pairing_record_.truth_pairs.clear();
-  pairing_record_.truth_distance_sq.clear();
-  pairing_record_.truth_candidate.clear();
-  pairing_record_.truth_consistent.clear();
   for (const auto& [i, j] : pairs_) {
     merged_ids_.emplace_back(m2.ids()[static_cast<std::size_t>(j)],
                              m1.ids()[static_cast<std::size_t>(i)]);
     pairing_record_.pairs.emplace_back(m1.ids()[static_cast<std::size_t>(i)],
                                        m2.ids()[static_cast<std::size_t>(j)]);
   }
-  for (const JoinTruthAudit& entry : truth_audit_) {
-    pairing_record_.truth_pairs.emplace_back(m1.ids()[static_cast<std::size_t>(entry.first)],
-                                             m2.ids()[static_cast<std::size_t>(entry.second)]);
-    pairing_record_.truth_distance_sq.push_back(entry.distance_sq);
-    pairing_record_.truth_candidate.push_back(entry.candidate ? 1 : 0);
-    pairing_record_.truth_consistent.push_back(entry.consistent ? 1 : 0);
-  }
-  truth_audit_.clear();
 
   // Tentative features left unmatched are dropped: deleting their rows and columns is their
   // exact marginal, and the constraints never involve them.

@@ -208,22 +208,32 @@ def summary(name: str, seeds, filter_name: str) -> None:
         joins += seed_joins
         reports += seed_reports
     print(f"{name}, seeds {seeds[0]}..{seeds[-1]}, {filter_name}: {len(reports)} duplicated landmarks")
-    if joins:
-        counted = ("pairable", "paired", "correct", "wrong", "missed", "failed_ic", "maps_disagree", "lost_in_search")
-        print(f"{'joins':>12s} " + " ".join(f"{k:>14s}" for k in counted))
-        for title, rows in (("<= 4 leaves", [r for r in joins if r["leaves"] <= 4]),
-                            ("> 4 leaves", [r for r in joins if r["leaves"] > 4])):
-            print(f"{title:>12s} " + " ".join(f"{sum(r[k] for r in rows):14d}" for k in counted))
-    where = collections.Counter(
-        "final fold" if r["where"] == "final fold" else "join" if r["where"].startswith("join") else r["where"]
-        for r in reports)
+    print_join_sizes(joins)
+    where = collections.Counter(where_kind(r["where"]) for r in reports)
     print("where they should have met: " + ", ".join(f"{k} {v}" for k, v in sorted(where.items())))
     print_reasons(reports)
 
 
+def where_kind(where: str) -> str:
+    """"same local map", "join" (any real join) or "final fold"."""
+    return "join" if where.startswith("join") else where
+
+
+def print_join_sizes(joins) -> None:
+    """The join scores summed over the joins of at most 4 leaves and over the larger ones."""
+    if not joins:
+        return
+    counted = ("pairable", "paired", "correct", "wrong", "missed", "failed_ic", "maps_disagree", "lost_in_search")
+    print(f"{'joins':>12s} " + " ".join(f"{k:>14s}" for k in counted))
+    for title, rows in (("<= 4 leaves", [r for r in joins if r["leaves"] <= 4]),
+                        ("> 4 leaves", [r for r in joins if r["leaves"] > 4])):
+        print(f"{title:>12s} " + " ".join(f"{sum(r[k] for r in rows):14d}" for k in counted))
+
+
 def print_reasons(reports) -> None:
-    for title, where in (("a real join", lambda w: w.startswith("join")), ("the final fold", lambda w: w == "final fold")):
-        reasons = collections.Counter(r["reason"].split(" (")[0] for r in reports if where(r["where"]) and r["reason"])
+    for title, kind in (("a real join", "join"), ("the final fold", "final fold")):
+        reasons = collections.Counter(r["reason"].split(" (")[0] for r in reports
+                                      if where_kind(r["where"]) == kind and r["reason"])
         if reasons:
             print(f"why, where they should have met in {title}: "
                   + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())))
@@ -251,11 +261,7 @@ def main() -> None:
         print(" ".join(f"{k:>8s}" if len(k) <= 8 else k for k in keys))
         for row in joins:
             print(" ".join(f"{row[k]:8d}" if len(k) <= 8 else f"{row[k]:{len(k)}d}" for k in keys))
-    if joins:
-        counted = ("pairable", "paired", "correct", "wrong", "missed", "failed_ic", "maps_disagree", "lost_in_search")
-        for title, rows in (("joins of <= 4 leaves", [r for r in joins if r["leaves"] <= 4]),
-                            ("joins of > 4 leaves", [r for r in joins if r["leaves"] > 4])):
-            print(f"{title}: " + ", ".join(f"{k} {sum(r[k] for r in rows)}" for k in counted))
+    print_join_sizes(joins)
     a = scores.association
     print(f"{args.scenario} seed {args.seed} {args.filter}: P {a.pairwise_precision:.3f} R {a.pairwise_recall:.3f} "
           f"features/landmark {a.features_per_landmark:.3f}, {len(reports)} duplicated landmarks")
@@ -265,8 +271,7 @@ def main() -> None:
             print(f"  landmark {r['landmark']:5d} steps {r['steps']} leaves {r['leaves']} {r['where']}:{reason} "
                   f"final D^2 {r['distance_sq']:.1f} ({'compatible' if r['compatible'] else 'incompatible'})")
     table = collections.Counter(
-        ("final fold" if r["where"] == "final fold" else "join" if r["where"].startswith("join") else r["where"],
-         "compatible" if r["compatible"] else "incompatible") for r in reports)
+        (where_kind(r["where"]), "compatible" if r["compatible"] else "incompatible") for r in reports)
     print(f"{'where they should have met':28s} {'compatible':>10s} {'incompatible':>12s}")
     for where in sorted({w for w, _ in table}):
         print(f"{where:28s} {table[(where, 'compatible')]:10d} {table[(where, 'incompatible')]:12d}")

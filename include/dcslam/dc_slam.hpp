@@ -124,10 +124,11 @@ class DCSlam : public SlamFilter {
   // Advances `task` by up to `budget`; returns work done. Completes the node when finished.
   std::int64_t work_on(JoinTask& task, std::int64_t budget);
   // A join that threw (a covariance that is not positive definite, say) leaves its task half
-  // done and the tree without its result: the failure is recorded, named, and raised as
-  // InvalidArgument by this and every later call, on whichever thread the join ran, instead
-  // of escaping a worker thread (which ends the process).
-  void record_join_failure(const JoinTask& task, const std::exception& error);
+  // done and the tree without its result: the failure is recorded and named (the first one
+  // stays), and raised as InvalidArgument by this and every later call, on whichever thread
+  // the join ran, instead of escaping a worker thread (which ends the process). Returns the
+  // recorded message.
+  std::string record_join_failure(const JoinTask& task, const std::exception& error);
   void throw_if_a_join_failed() const;
   void complete(JoinTask& task);
   void worker_loop();

@@ -77,6 +77,8 @@ class JoinAssociator {
   // JoinOracle: its pairing (per m2 feature, its m1 partner or kStar), the audit of that
   // pairing, and the decision corrected with it.
   std::vector<int> oracle_pairing() const;
+  // Whether m1's feature `first` (or kStar) is among the candidates of m2's feature `second`.
+  bool is_candidate(std::size_t second, int first) const;
   void audit_oracle(const std::vector<int>& truth);
   void apply_oracle(const std::vector<int>& truth, std::vector<int>& feature_of) const;
 

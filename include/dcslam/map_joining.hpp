@@ -249,7 +249,6 @@ class MapJoin {
   JoinReport report_;
   JoinPairingRecord pairing_record_;
   Pairs pairs_;
-  std::vector<JoinTruthAudit> truth_audit_;  // from the associator, until recorded
   std::vector<Eigen::Index> first_tentative_;
   std::vector<Eigen::Index> second_tentative_;
   std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids_;
