@@ -57,7 +57,8 @@ void define_dc_slam(py::module_& m) {
            })
       .def("set_join_oracle",
            [](DCSlam& slam, const std::vector<std::int64_t>& feature_ids,
-              const std::vector<std::int64_t>& landmark_ids, const std::string& mode) {
+              const std::vector<std::int64_t>& landmark_ids, const std::string& mode,
+              Eigen::Index min_first_features) {
              if (feature_ids.size() != landmark_ids.size()) {
                throw InvalidArgument("set_join_oracle: feature_ids and landmark_ids differ in length");
              }
@@ -73,10 +74,15 @@ void define_dc_slam(py::module_& m) {
              } else {
                throw InvalidArgument("set_join_oracle: mode must be 'truth', 'among_candidates', 'remove_wrong' or 'audit', got '" + mode + "'");
              }
+             if (min_first_features < 0) {
+               throw InvalidArgument("set_join_oracle: min_first_features must be >= 0, got " +
+                                     std::to_string(min_first_features));
+             }
+             oracle->min_first_features = min_first_features;
              for (std::size_t k = 0; k < feature_ids.size(); ++k) oracle->landmark_of[feature_ids[k]] = landmark_ids[k];
              slam.set_join_oracle(std::move(oracle));
            },
-           py::arg("feature_ids"), py::arg("landmark_ids"), py::arg("mode"))
+           py::arg("feature_ids"), py::arg("landmark_ids"), py::arg("mode"), py::arg("min_first_features") = 0)
       .def("join_pairings",
            [](const DCSlam& slam) {
              py::list out;

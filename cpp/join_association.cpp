@@ -260,7 +260,7 @@ void JoinAssociator::finish(std::vector<int> feature_of) {
   if (options_.oracle) {
     const std::vector<int> truth = oracle_pairing();
     audit_oracle(truth);
-    apply_oracle(truth, feature_of);
+    if (frame_.first().num_features() >= options_.oracle->min_first_features) apply_oracle(truth, feature_of);
   }
   for (std::size_t j = 0; j < feature_of.size(); ++j) {
     const int i = feature_of[j];

@@ -38,6 +38,9 @@ struct JoinOracle {
   };
   Mode mode = Mode::Truth;
   std::unordered_map<std::int64_t, std::int64_t> landmark_of;
+  // The decision is corrected only at joins whose m1 holds at least this many features (the
+  // others are audited and left as they are): to tell which joins' mistakes decide the map.
+  Eigen::Index min_first_features = 0;
 };
 
 // A JoinOracle's pairing seen through the join's own pairing model, to tell why a true pair

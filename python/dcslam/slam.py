@@ -296,7 +296,7 @@ class DCSlam(SlamFilter):
         ``estimate()``."""
         return [_pairing_record(record) for record in self._core.fold_pairings()]
 
-    def set_join_oracle(self, feature_ids, landmark_ids, mode: str = "truth") -> None:
+    def set_join_oracle(self, feature_ids, landmark_ids, mode: str = "truth", min_first_features: int = 0) -> None:
         """A research instrument, never for a real run: corrects every join's association with
         the truth, to measure how far it is from what the joined maps allow.
 
@@ -308,8 +308,10 @@ class DCSlam(SlamFilter):
         landmark in the first map; ``"among_candidates"`` does so only where that feature is
         among the individually compatible candidates; ``"remove_wrong"`` keeps the
         association's own pairs less the wrong ones; ``"audit"`` changes nothing and records
-        the oracle's pairing in :meth:`join_pairings` (why a true pair was not made). Only
-        before the first ``predict()``.
+        the oracle's pairing in :meth:`join_pairings` (why a true pair was not made).
+        ``min_first_features`` corrects only the joins whose first map holds at least that
+        many features (the others are audited and left as they are), to tell which joins'
+        mistakes decide the final map. Only before the first ``predict()``.
         See ``tools/join_association_ceiling.py``."""
         features = np.asarray(feature_ids)
         landmarks = np.asarray(landmark_ids)
@@ -319,7 +321,10 @@ class DCSlam(SlamFilter):
         for name, values in (("feature_ids", features), ("landmark_ids", landmarks)):
             if values.size and not np.issubdtype(values.dtype, np.integer):
                 raise ValueError(f"set_join_oracle: {name} must be integers, got dtype {values.dtype}")
-        self._core.set_join_oracle(features.astype(np.int64).tolist(), landmarks.astype(np.int64).tolist(), mode)
+        if isinstance(min_first_features, bool) or not isinstance(min_first_features, (int, np.integer)):
+            raise ValueError(f"set_join_oracle: min_first_features must be an integer, got {min_first_features!r}")
+        self._core.set_join_oracle(features.astype(np.int64).tolist(), landmarks.astype(np.int64).tolist(), mode,
+                                   int(min_first_features))
 
     def finish_joins(self) -> None:
         """Completes every queued join now (waits for the worker in threaded mode)."""

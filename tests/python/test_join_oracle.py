@@ -11,10 +11,10 @@ import dcslam
 from dcslam import evaluation
 
 
-def run(sim, oracle=None):
+def run(sim, oracle=None, min_first_features=0):
     slam = dcslam.DCSlam(dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=0))
     if oracle is not None:
-        slam.set_join_oracle(*oracle)
+        slam.set_join_oracle(*oracle, min_first_features=min_first_features)
     returned = slam.run(sim.steps)
     slam.finish_joins()
     return slam, returned
@@ -95,6 +95,27 @@ def test_among_candidates_pairs_only_true_pairs(scene):
         assert len(record["pairs"]) <= expected_pair_count(record, label)
 
 
+def test_oracle_limited_to_large_joins_corrects_only_those(scene):
+    # Joins of two local maps (first map below the threshold) see inputs no join has touched,
+    # so they decide exactly as without the oracle; every join at or above it is the truth.
+    sim, slam_as_is, _, label, oracle = scene
+    threshold = 60
+    slam, _ = run(sim, (*oracle, "truth"), min_first_features=threshold)
+    events = sorted(slam.stats.joins, key=lambda j: j["index"])
+    as_is = slam_as_is.join_pairings()
+    corrected = untouched = 0
+    for event, record, before in zip(events, slam.join_pairings(), as_is):
+        pairs = {tuple(p) for p in record["pairs"].tolist()}
+        if len(record["first_ids"]) >= threshold:
+            assert pairs == {tuple(p) for p in record["truth_pairs"].tolist()}
+            assert all(label[i] == label[j] >= 0 for i, j in pairs)
+            corrected += 1
+        elif event["leaves"] == 2:
+            assert pairs == {tuple(p) for p in before["pairs"].tolist()}
+            untouched += 1
+    assert corrected > 0 and untouched > 0
+
+
 def test_bad_oracle_calls_are_named_errors():
     slam = dcslam.DCSlam(dcslam.SlamConfig(association="jcbb", join_association="rjc"))
     with pytest.raises(ValueError, match="mode"):
@@ -103,6 +124,10 @@ def test_bad_oracle_calls_are_named_errors():
         slam.set_join_oracle([1, 2], [2], "truth")
     with pytest.raises(ValueError, match="integers"):
         slam.set_join_oracle([1.5], [2], "truth")
+    with pytest.raises(ValueError, match="min_first_features"):
+        slam.set_join_oracle([1], [2], "truth", min_first_features=-1)
+    with pytest.raises(ValueError, match="min_first_features"):
+        slam.set_join_oracle([1], [2], "truth", min_first_features=2.5)
     slam.predict(np.zeros(3), 1e-4 * np.eye(3))
     with pytest.raises(ValueError, match="before the first predict"):
         slam.set_join_oracle([1], [2], "truth")
