@@ -125,3 +125,8 @@ def test_joins_by_id_need_ids_inside_local_maps(association):
 def test_the_simulator_refuses_measurement_noise_the_filters_refuse(observation, field):
     with pytest.raises(ValueError, match=f"SimulationConfig.{field}: must be finite and > 0"):
         dcslam.simulate("straight", steps=5, observation=observation, **{field: 0.0})
+
+
+def test_the_chi_square_quantile_prints_the_refused_value():
+    with pytest.raises(dcslam.InvalidArgument, match=r"alpha must lie in \(0, 1\), got -1e-09"):
+        dcslam._core.chi2_upper_quantile(2.0, -1e-9)
