@@ -1,6 +1,7 @@
 #include "conversions.hpp"
 
 #include <cmath>
+#include <limits>
 #include <sstream>
 
 namespace dcslam::bindings {
@@ -19,12 +20,19 @@ std::string shape_string(const py::array& array) {
 
 DoubleArray as_double_array(const py::handle& obj, const std::string& where) {
   // ensure() returns a null handle (and clears the Python error) when it cannot convert.
-  DoubleArray array = obj.is_none() ? DoubleArray() : DoubleArray::ensure(obj);
-  if (!array) {
-    throw py::value_error(where + ": expected an array of numbers, got " +
+  const py::array source = obj.is_none() ? py::array() : py::array::ensure(obj);
+  if (!source) {
+    throw py::value_error(where + ": expected an array of real numbers, got " +
                           std::string(py::str(py::type::of(obj).attr("__name__"))));
   }
-  return array;
+  // Only integers and floats convert exactly enough to mean what the caller meant: numpy
+  // would parse strings, drop imaginary parts and read booleans as 0 and 1.
+  const char kind = source.dtype().kind();
+  if (kind != 'f' && kind != 'i' && kind != 'u') {
+    throw py::value_error(where + ": expected an array of real numbers, got dtype " +
+                          std::string(py::str(source.dtype())));
+  }
+  return DoubleArray::ensure(source);
 }
 
 void require_finite(const DoubleArray& array, const std::string& where) {
@@ -76,6 +84,16 @@ std::vector<std::int64_t> as_int64_vector(const py::handle& obj, const std::stri
   if (kind != 'i' && kind != 'u') {
     throw py::value_error(where + ": expected integers, got dtype " +
                           std::string(py::str(array.dtype())));
+  }
+  if (kind == 'u') {
+    // Unsigned values above int64's range would wrap to negative ids.
+    const auto values = py::array_t<std::uint64_t, py::array::c_style | py::array::forcecast>::ensure(array);
+    for (py::ssize_t i = 0; i < values.size(); ++i) {
+      if (values.data()[i] > static_cast<std::uint64_t>(std::numeric_limits<std::int64_t>::max())) {
+        throw py::value_error(where + "[" + std::to_string(i) + "] is " + std::to_string(values.data()[i]) +
+                              ", beyond int64");
+      }
+    }
   }
   const auto values = py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>::ensure(array);
   return std::vector<std::int64_t>(values.data(), values.data() + values.size());

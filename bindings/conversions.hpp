@@ -19,7 +19,8 @@ using DoubleArray = py::array_t<double, py::array::c_style | py::array::forcecas
 // "(3,)" or "(4, 2)" for messages.
 std::string shape_string(const py::array& array);
 
-// Converts `obj` to a C-contiguous float64 array, or raises ValueError naming `where`.
+// Converts `obj` (integers or floats; not strings, complex numbers or booleans) to a
+// C-contiguous float64 array, or raises ValueError naming `where`.
 DoubleArray as_double_array(const py::handle& obj, const std::string& where);
 
 // Requires every element to be finite.
@@ -33,7 +34,8 @@ Eigen::MatrixXd as_matrix(const py::handle& obj, Eigen::Index rows, Eigen::Index
                           const std::string& where);
 
 // A 1-D array of integers (any integer dtype; an empty list is accepted) as int64 values.
-// Floats are refused rather than truncated.
+// Floats, strings and booleans are refused rather than converted, unsigned values beyond
+// int64 rather than wrapped.
 std::vector<std::int64_t> as_int64_vector(const py::handle& obj, const std::string& where);
 
 }  // namespace dcslam::bindings

@@ -159,10 +159,10 @@ double chi2_quantile(int dof, double p) {
 
 double chi2_upper_quantile(double dof, double alpha) {
   if (!(dof > 0.0) || !std::isfinite(dof)) {
-    throw InvalidArgument("chi2_upper_quantile: dof must be > 0 and finite, got " + std::to_string(dof));
+    throw InvalidArgument("chi2_upper_quantile: dof must be > 0 and finite, got " + number_text(dof));
   }
   if (!(alpha > 0.0 && alpha < 1.0)) {
-    throw InvalidArgument("chi2_upper_quantile: alpha must lie in (0, 1), got " + std::to_string(alpha));
+    throw InvalidArgument("chi2_upper_quantile: alpha must lie in (0, 1), got " + number_text(alpha));
   }
   if (dof == 2.0) return -2.0 * std::log(alpha);
   const double a = 0.5 * dof;

@@ -357,12 +357,14 @@ void SimulationConfig::validate() const {
   require(non_negative(min_range) && min_range < max_range,
           "min_range: must lie in [0, max_range), got " + str(min_range));
   require(fov > 0.0 && fov <= 2.0 * kPi, "fov: must lie in (0, 2 pi], got " + str(fov));
-  require(non_negative(range_sigma_fraction),
-          "range_sigma_fraction: must be finite and >= 0, got " + str(range_sigma_fraction));
-  require(non_negative(bearing_sigma),
-          "bearing_sigma: must be finite and >= 0, got " + str(bearing_sigma));
-  require(non_negative(point_sigma),
-          "point_sigma: must be finite and >= 0, got " + str(point_sigma));
+  // The filters need a positive definite R, so the noise of the model in use must be > 0.
+  if (observation == ObservationModel::RangeBearing) {
+    require(positive(range_sigma_fraction),
+            "range_sigma_fraction: must be finite and > 0, got " + str(range_sigma_fraction));
+    require(positive(bearing_sigma), "bearing_sigma: must be finite and > 0, got " + str(bearing_sigma));
+  } else {
+    require(positive(point_sigma), "point_sigma: must be finite and > 0, got " + str(point_sigma));
+  }
   require(positive(features_per_step),
           "features_per_step: must be finite and > 0, got " + str(features_per_step));
   require(!num_features || *num_features >= 0,

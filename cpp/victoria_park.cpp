@@ -4,12 +4,17 @@
 #include <cmath>
 
 #include "dcslam/errors.hpp"
+#include "dcslam/input_checks.hpp"
 #include "dcslam/text_reader.hpp"
 
 namespace dcslam {
 
 namespace {
 constexpr double kHalfPi = 1.57079632679489661923;
+
+void require_within(const std::string& fault, const std::string& where, const char* field) {
+  if (!fault.empty()) throw ParseError(where + ": field '" + field + "': " + fault);
+}
 }  // namespace
 
 double AckermannVehicle::centre_speed(double encoder_speed, double steering) const {
@@ -103,6 +108,11 @@ VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
       !(noise.floor_sigma_xy >= 0.0) || !(noise.floor_sigma_phi >= 0.0))
     throw InvalidArgument("odometry noise: standard deviations must be non-negative");
   if (!(noise.sample_period > 0.0)) throw InvalidArgument("sample_period: must be positive");
+  for (const auto& [name, sigma] : {std::pair{"sigma_range", options.sigma_range},
+                                    std::pair{"sigma_bearing", options.sigma_bearing}}) {
+    const std::string fault = covariance_entry_fault(sigma * sigma);
+    if (!fault.empty()) throw InvalidArgument(std::string(name) + ": its square " + fault);
+  }
 
   const CsvTable odometry(files.odometry, {"t_s", "speed_mps", "steering_rad"});
   odometry.require_non_decreasing(0);
@@ -119,6 +129,12 @@ VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
   std::vector<OdometrySample> samples(odometry.rows());
   for (std::size_t i = 0; i < samples.size(); ++i) {
     const double raw = odometry.column(2)[i];
+    if (std::fabs(odometry.column(1)[i]) > kMaxSpeed)
+      throw ParseError(odometry.where(i) + ": field 'speed_mps': " + number_text(odometry.column(1)[i]) +
+                       " exceeds " + number_text(kMaxSpeed) + " m/s in magnitude");
+    if (std::fabs(raw) > kMaxSteering)
+      throw ParseError(odometry.where(i) + ": field 'steering_rad': " + number_text(raw) +
+                       " exceeds " + number_text(kMaxSteering) + " rad in magnitude");
     samples[i] = {odometry.column(0)[i], odometry.column(1)[i],
                   options.steering == Steering::Raw ? raw : recalibrated_steering(raw)};
   }
@@ -141,6 +157,16 @@ VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
     Mat3 Q = Mat3::Zero();
     // The first scan has no predecessor: the run starts there with u = 0, Q = 0.
     if (k > 0) integrate_odometry(vehicle, noise, samples, data.t(k - 1), data.t(k), u, Q);
+    // Every sample is within its bounds, but a long enough gap between scans still adds up
+    // to a motion the filter refuses.
+    std::string fault = distance_fault(u.x());
+    if (fault.empty()) fault = distance_fault(u.y());
+    if (fault.empty()) fault = angle_fault(u.z());
+    for (Eigen::Index e = 0; e < 9 && fault.empty(); ++e) fault = covariance_entry_fault(Q(e));
+    if (fault.empty()) fault = semidefinite_fault(Q);
+    if (!fault.empty())
+      throw ParseError(scans.where(k) + ": the odometry since the previous scan gives a motion the "
+                       "filter refuses (" + fault + ")");
     const auto row = static_cast<Eigen::Index>(k);
     data.u.row(row) = u.transpose();
     data.Q.row(row) = Eigen::Map<const Eigen::Matrix<double, 1, 9>>(Q.data());
@@ -158,7 +184,7 @@ VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
   for (std::size_t i = 0; i < trees.rows(); ++i) {
     const double scan_value = trees.column(0)[i];
     if (scan_value < 0.0 || scan_value >= static_cast<double>(n))
-      throw ParseError(trees.where(i) + ": field 'scan': " + std::to_string(scan_value) +
+      throw ParseError(trees.where(i) + ": field 'scan': " + number_text(scan_value) +
                        " is not a scan of " + files.scans);
     const auto scan = static_cast<std::size_t>(scan_value);
     if (scan < previous_scan)
@@ -166,7 +192,7 @@ VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
                        std::to_string(scan) + " after " + std::to_string(previous_scan) + ")");
     previous_scan = scan;
     if (std::fabs(trees.column(1)[i] - data.t(static_cast<Eigen::Index>(scan))) > 1e-6)
-      throw ParseError(trees.where(i) + ": field 't_s': " + std::to_string(trees.column(1)[i]) +
+      throw ParseError(trees.where(i) + ": field 't_s': " + number_text(trees.column(1)[i]) +
                        " differs from scan " + std::to_string(scan) + "'s time in " + files.scans);
     ++counts[scan];
     const double range = trees.column(2)[i], bearing = trees.column(3)[i];
@@ -175,6 +201,9 @@ VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
       throw ParseError(trees.where(i) + ": field 'range_m': must be positive");
     if (diameter < 0.0)
       throw ParseError(trees.where(i) + ": field 'diameter_m': must be non-negative");
+    require_within(distance_fault(range), trees.where(i), "range_m");
+    require_within(angle_fault(bearing), trees.where(i), "bearing_rad");
+    require_within(distance_fault(diameter), trees.where(i), "diameter_m");
     const double centre_range = range + 0.5 * diameter;
     if (centre_range > options.max_range) {
       ++data.detections_beyond_range;

@@ -19,4 +19,8 @@ class ParseError : public std::invalid_argument {
   using std::invalid_argument::invalid_argument;
 };
 
+// A number as message text, with the digits that tell it apart ("-1e-07", "1e+155"), where
+// std::to_string prints "-0.000000" and 300 digits.
+std::string number_text(double value);
+
 }  // namespace dcslam

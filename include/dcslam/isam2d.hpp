@@ -30,8 +30,11 @@ struct Isam2dData {
 };
 
 // Throws ParseError naming file, line and field for an unknown tag, a wrong token count, a
-// non-number, a broken pose chain (i must be the previous j, j > i), a LANDMARK not seen from
-// the current pose, or a covariance that is not symmetric positive semi-definite.
+// non-number, a negative id, a broken pose chain (i must be the previous j, j > i), a LANDMARK
+// not seen from the current pose or seen twice from it, a file with no ODOMETRY or LANDMARK
+// line, and whatever the filter would refuse (input_checks.hpp): a value beyond its bound, an
+// ODOMETRY covariance that is not positive semi-definite, a LANDMARK covariance that is not
+// positive definite.
 Isam2dData read_isam2d(const std::string& path);
 
 }  // namespace dcslam

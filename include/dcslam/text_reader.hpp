@@ -10,9 +10,16 @@
 namespace dcslam {
 
 // Reads a plain or gzip text file (detected from its content, not its name) one line at a
-// time. A gzip stream that ends early raises ParseError("<file>: truncated gzip stream").
+// time, holding one line and one 64 KiB block in memory whatever the file's size. Concatenated
+// gzip members read as one file. ParseError for a line longer than kMaxLineLength, a NUL byte
+// (a binary file), a gzip stream that ends early ("<file>: truncated gzip stream (it ends in
+// line N)") and data after the gzip stream.
 class TextReader {
  public:
+  // The longest line accepted, in bytes, without its line ending: far above any line of the
+  // formats read here, and it bounds the memory a broken file (one endless line) can take.
+  static constexpr std::size_t kMaxLineLength = 64 * 1024;
+
   explicit TextReader(const std::string& path);
   ~TextReader();
   TextReader(const TextReader&) = delete;
@@ -28,22 +35,34 @@ class TextReader {
   std::string where() const;
 
  private:
-  struct GzFile;
+  struct Source;
+  // Refills block_ with the next bytes of the text; false at its end.
+  bool fill();
+
   std::string path_;
-  std::unique_ptr<GzFile> file_;
+  std::unique_ptr<Source> source_;
+  std::vector<char> block_;
+  std::size_t block_begin_ = 0, block_end_ = 0;
   std::int64_t line_number_ = 0;
 };
 
-// Parses a whole decimal number; throws ParseError "<where>: field '<field>': '<text>' is not
-// a number" otherwise (also for inf/nan, which no dataset field may hold).
+// Bytes of a file quoted in messages: at most kExcerptLength of them, then "..." when cut;
+// bytes that are not printable ASCII as \xNN, so that a message is text whatever the file
+// holds and a 10 MB token does not become a 10 MB message.
+constexpr std::size_t kExcerptLength = 40;
+std::string excerpt(const std::string& text);
+
+// Parses a whole decimal number (digits, sign, point, exponent); throws ParseError "<where>:
+// field '<field>': '<excerpt>' is not a number" otherwise (also for inf, nan, hex floats and
+// values beyond double's range, which no dataset field may hold).
 double parse_number(const std::string& text, const std::string& where, const std::string& field);
 // Same for an integer field: also rejects fractional values.
 std::int64_t parse_integer(const std::string& text, const std::string& where,
                            const std::string& field);
 
-// The numeric columns of a comma-separated file with one header line. Only the requested
-// columns are kept (in the requested order); the header must hold each of them, and every
-// row must have as many fields as the header.
+// The numeric columns of a comma-separated file with one header line and at least one row.
+// Only the requested columns are kept (in the requested order); the header must hold each of
+// them, and every row must have as many fields as the header.
 class CsvTable {
  public:
   CsvTable(const std::string& path, const std::vector<std::string>& columns);

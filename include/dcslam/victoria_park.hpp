@@ -51,6 +51,11 @@ struct OdometryNoise {
   double floor_sigma_phi = 0.002;  // rad / sqrt(s)
 };
 
+// Bounds of the odometry file's fields: far beyond the car, and they keep the vehicle model
+// finite (at the steering bound, 1 - (H/L) tan(alpha) is still above 0.5).
+constexpr double kMaxSpeed = 100.0;   // |speed_mps| [m/s]
+constexpr double kMaxSteering = 1.0;  // |steering_rad|, as logged [rad]
+
 struct OdometrySample {
   double t;
   double encoder_speed;

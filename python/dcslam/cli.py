@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import enum
+import tempfile
 from pathlib import Path
 from typing import Dict, List, Optional
 
@@ -37,7 +38,7 @@ def _root(
 
 
 @app.command()
-def selfcheck(samples: int = typer.Option(200, help="Random inputs per function.")) -> None:
+def selfcheck(samples: int = typer.Option(200, "--samples", min=1, help="Random inputs per function.")) -> None:
     """Check the compiled core: analytic Jacobians against central differences."""
     from .selfcheck import geometry_errors
 
@@ -119,16 +120,29 @@ def _filters(choice: FilterChoice) -> List[str]:
 
 
 def _fail(message: str) -> None:
-    console.print(f"[bold red]error:[/] {escape(message)}")
+    console.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)  # one line, unwrapped
     raise typer.Exit(code=2)
+
+
+def _require_writable_folder(output: Path) -> None:
+    """Creates ``output`` and writes a file into it, so that a run whose results could not be
+    written fails before it starts, not after."""
+    try:
+        output.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=output):
+            pass
+    except OSError as error:
+        _fail(f"cannot write to --output {output}: {error.strerror or error}")
 
 
 def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Path, max_steps: Optional[int],
                  plots: bool, progress: Optional[bool], gps=None, hint: str = "") -> None:
-    """Builds every pipeline first (bad options fail before any work), runs them, writes and
-    summarises the results. ``hint`` is added to the message of a refused configuration."""
+    """Checks the output folder and builds every pipeline first (bad options fail before any
+    work), runs them, writes and summarises the results. ``hint`` is added to the message of a
+    refused configuration."""
     from .pipeline import SlamPipeline, gps_alignment, map_agreement, map_trajectory
 
+    _require_writable_folder(output)
     show_progress = console.is_terminal if progress is None else progress
     try:
         pipelines = [SlamPipeline(steps, cfg, filter=filter_name, max_steps=max_steps, progress=show_progress,
@@ -151,7 +165,10 @@ def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Pat
                 console.print(f"[yellow]GPS alignment of {result.filter_name} skipped:[/] {error}")
     agreement = map_agreement(results[0].estimate, results[1].estimate) if len(results) == 2 else None
 
-    written = _write_outputs(results, alignments, output, plots, name)
+    try:
+        written = _write_outputs(results, alignments, output, plots, name)
+    except OSError as error:  # e.g. the disk filled up during the run
+        _fail(f"cannot write the results to --output {output}: {error}")
     console.print(_summary_table(name, results, alignments, map_alignments, agreement))
     console.print(f"Outputs in [bold]{output}[/]:")
     for path in written:

@@ -5,16 +5,31 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Mapping, Tuple
 
+import numpy as np
+
 from . import _core
 
 __all__ = ["SlamConfig"]
 
 
+def _is_boolean(value: Any) -> bool:
+    return isinstance(value, (bool, np.bool_))
+
+
 def to_core_struct(values: Any, core: Any, name: str) -> Any:
     """Copies every field of the dataclass ``values`` onto the compiled struct ``core`` and
-    runs its ``validate()``: type and range errors become ``ValueError`` naming the field."""
+    runs its ``validate()``: type and range errors become ``ValueError`` naming the field.
+
+    The compiled struct's default value tells a field's type. Booleans and numbers are kept
+    apart, which the compiled setters would not do: they read None, 2 or 0.5 as a boolean
+    and True as the number 1."""
     for field in dataclasses.fields(values):
         value = getattr(values, field.name)
+        default = getattr(core, field.name)
+        if isinstance(default, bool) and not _is_boolean(value):
+            raise ValueError(f"{name}.{field.name}: expected True or False, got {value!r}")
+        if isinstance(default, (int, float)) and not isinstance(default, bool) and _is_boolean(value):
+            raise ValueError(f"{name}.{field.name}: expected a number, got {value!r}")
         try:
             setattr(core, field.name, value)
         except TypeError as error:  # wrong Python type for a compiled field

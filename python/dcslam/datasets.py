@@ -214,7 +214,10 @@ def victoria_park(data_dir: Optional[PathLike] = None, **options) -> VictoriaPar
             f"(known: {', '.join(sorted(VICTORIA_PARK_DEFAULTS))})")
     values = {**VICTORIA_PARK_DEFAULTS, **options}
     for name, value in values.items():
-        if name != "steering" and not (isinstance(value, (int, float)) and math.isfinite(value)):
+        if name == "steering":
+            if not isinstance(value, str):
+                raise _core.InvalidArgument(f"victoria_park: option 'steering' must be a string, got {value!r}")
+        elif isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value)):
             raise _core.InvalidArgument(f"victoria_park: option '{name}' must be a finite number, got {value!r}")
     with _victoria_park_folder(data_dir) as folder:
         paths = [os.path.join(folder, name) for name in VICTORIA_PARK_FILES]

@@ -66,8 +66,9 @@ class SimulationConfig:
         max_range, min_range: detection range; the blind zone below ``min_range`` keeps
             ``R`` positive definite (range sigma is proportional to range).
         fov: full field of view, centred on the sensor's x axis (``2 pi``: all around).
-        range_sigma_fraction, bearing_sigma: range-bearing noise (sigma_r = fraction * r).
-        point_sigma: isotropic sigma of the ``"point"`` model.
+        range_sigma_fraction, bearing_sigma: range-bearing noise (sigma_r = fraction * r);
+            > 0 with ``"range_bearing"``, as the filters need a positive definite ``R``.
+        point_sigma: isotropic sigma of the ``"point"`` model; > 0 with ``"point"``.
         features_per_step: expected features in the sensor footprint; sets the density to
             ``features_per_step / (fov / 2 * (max_range**2 - min_range**2))``.
         num_features: if set, this many features instead (density follows): 100 to 20,000+.

@@ -172,15 +172,13 @@ class SlamFilter:
         """Runs ``predict(s.u, s.Q)`` then ``update(s.z, s.R, ids)`` for every step in one C++ call.
 
         ``ids`` is ``getattr(s, ids_field)`` in ``"known"`` association mode (e.g.
-        ``ids_field="true_ids"`` for simulator steps) and None otherwise. Returns the ids of
-        every update. An invalid step raises ``ValueError`` naming it; earlier steps stay
-        applied.
+        ``ids_field="true_ids"`` for simulator steps) and None otherwise; each step's values
+        are converted as :meth:`predict` and :meth:`update` convert theirs, so ``run`` refuses
+        what they refuse. Returns the ids of every update. An invalid step raises
+        ``ValueError`` naming it; earlier steps stay applied.
         """
         use_ids = self._config.association == "known" and ids_field is not None
-        packed = [
-            (s.u, s.Q, s.z, s.R, np.asarray(getattr(s, ids_field), dtype=np.int64) if use_ids else None)
-            for s in steps
-        ]
+        packed = [(s.u, s.Q, s.z, s.R, getattr(s, ids_field) if use_ids else None) for s in steps]
         return self._core.run(packed)
 
 

@@ -9,6 +9,7 @@
 
 #include "dcslam/dc_slam.hpp"
 #include "dcslam/ekf_slam.hpp"
+#include "print_parameters.hpp"
 
 namespace dcslam {
 namespace {
@@ -110,10 +111,26 @@ SlamConfig mode_config(int p, Mode mode) {
   return config;
 }
 
+const char* mode_name(Mode mode) {
+  switch (mode) {
+    case Mode::Immediate: return "immediate";
+    case Mode::Amortized: return "amortized";
+    case Mode::Threaded: return "threaded";
+  }
+  return "?";
+}
+
 struct DcCase {
   int local_map_features;
   Mode mode;
 };
+
+// The cases print as text: without a PrintTo gtest prints their raw bytes, and CTest puts
+// the printed value in the test name.
+void PrintTo(Mode mode, std::ostream* out) { *out << mode_name(mode); }
+void PrintTo(const DcCase& c, std::ostream* out) {
+  *out << "features" << c.local_map_features << "_" << mode_name(c.mode);
+}
 
 class DcSlamLinear : public ::testing::TestWithParam<DcCase> {};
 

@@ -17,6 +17,7 @@
 #include "dcslam/ekf_slam.hpp"
 #include "dcslam/observation.hpp"
 #include "admissible_hypotheses.hpp"
+#include "print_parameters.hpp"
 
 namespace dcslam {
 namespace {

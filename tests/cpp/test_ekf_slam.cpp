@@ -11,6 +11,7 @@
 #include "dcslam/input_checks.hpp"
 #include "dcslam/observation.hpp"
 #include "numeric_jacobian.hpp"
+#include "print_parameters.hpp"
 
 namespace dcslam {
 namespace {

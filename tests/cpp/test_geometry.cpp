@@ -8,6 +8,7 @@
 #include "dcslam/geometry.hpp"
 #include "dcslam/observation.hpp"
 #include "numeric_jacobian.hpp"
+#include "print_parameters.hpp"
 
 namespace dcslam {
 namespace {

@@ -7,6 +7,7 @@
 #include "dcslam/ekf_slam.hpp"
 #include "dcslam/jcbb.hpp"
 #include "dcslam/join_association.hpp"
+#include "print_parameters.hpp"
 
 namespace dcslam {
 namespace {

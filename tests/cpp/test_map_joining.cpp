@@ -178,6 +178,12 @@ struct JoinCase {
   Index block_columns;
 };
 
+// The cases print as text: without a PrintTo gtest prints their raw bytes (padding included,
+// different from build to build), and CTest puts the printed value in the test name.
+void PrintTo(const JoinCase& c, std::ostream* out) {
+  *out << "n1_" << c.n1 << "_n2_" << c.n2 << "_shared" << c.shared << "_columns" << c.block_columns;
+}
+
 class MapJoiningTest : public ::testing::TestWithParam<JoinCase> {};
 
 TEST_P(MapJoiningTest, FusedJoinEqualsDenseTextbookJoin) {
@@ -530,6 +536,10 @@ struct IteratedCase {
   Index block_columns;
 };
 
+void PrintTo(const IteratedCase& c, std::ostream* out) {
+  *out << "seed" << c.seed << "_shared" << c.shared << "_columns" << c.block_columns;
+}
+
 class IteratedJoinTest : public ::testing::TestWithParam<IteratedCase> {};
 
 TEST_P(IteratedJoinTest, EqualsTheDenseConstrainedMapAndSatisfiesTheConstraints) {
@@ -685,6 +695,12 @@ struct PosesCase {
   bool keep_first_robot;
   Index block_columns, work_unit;
 };
+
+void PrintTo(const PosesCase& c, std::ostream* out) {
+  *out << "n1_" << c.n1 << "_n2_" << c.n2 << "_shared" << c.shared << "_q1_" << c.q1 << "_q2_"
+       << c.q2 << (c.keep_first_robot ? "_keep" : "_drop") << "_columns" << c.block_columns
+       << "_unit" << c.work_unit;
+}
 
 class MapJoiningPosesTest : public ::testing::TestWithParam<PosesCase> {};
 

@@ -65,3 +65,29 @@ def test_run_isam_refuses_a_bad_file(tmp_path):
 def test_run_victoria_park_refuses_known_association(tmp_path):
     out = run("run", "victoria-park", "--association", "known", "--output", str(tmp_path), "--no-progress")
     assert out.returncode == 2 and "no landmark ids" in out.stdout
+
+
+def test_an_unwritable_output_fails_at_once_in_one_line(tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    out = run("run", "isam", str(ISAM_FILE), "--output", str(blocker / "results"), "--no-progress")
+    assert out.returncode == 2
+    assert "Traceback" not in out.stdout + out.stderr
+    assert "features in the final map" not in out.stdout  # refused before running
+    message = " ".join(out.stdout.split())
+    assert "cannot write to --output" in message and "a_file" in message
+
+
+def test_selfcheck_refuses_samples_that_check_nothing():
+    for samples in ("-5", "0"):
+        out = run("selfcheck", "--samples", samples)
+        assert out.returncode != 0 and "Traceback" not in out.stdout + out.stderr
+        assert "--samples" in out.stdout + out.stderr
+
+
+def test_a_broken_file_is_one_short_line(tmp_path):
+    path = tmp_path / "graph.txt"
+    path.write_bytes(b"ODOMETRY 0 1 " + b"9" * 60000 + b"\xff 0 0 1e-4 0 0 4e-6 0 4e-6\n")
+    out = run("run", "isam", str(path), "--output", str(tmp_path / "out"), "--no-progress")
+    assert out.returncode == 2 and "Traceback" not in out.stdout + out.stderr
+    assert "graph.txt:1: field 'dx'" in " ".join(out.stdout.split()) and len(out.stdout) < 600

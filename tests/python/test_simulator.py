@@ -9,8 +9,10 @@ import pytest
 import dcslam
 from dcslam.simulation import TRAJECTORIES
 
+# Measurement noise must be > 0 (the filters need a positive definite R): 1e-15 is far below
+# the tolerances of the comparisons.
 NOISE_FREE = dict(
-    odometry_sigma=(0.0, 0.0, 0.0), range_sigma_fraction=0.0, bearing_sigma=0.0, point_sigma=0.0
+    odometry_sigma=(0.0, 0.0, 0.0), range_sigma_fraction=1e-15, bearing_sigma=1e-15, point_sigma=1e-15
 )
 
 
