@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Builds the C++ tests with sanitizers and runs them:
+#   address  AddressSanitizer + UndefinedBehaviorSanitizer (build/asan), the whole suite;
+#   thread   ThreadSanitizer (build/tsan), the tests that run joins on the worker thread
+#            (threaded_joins) or compare the join schedules: TSan slows everything ~10x, and
+#            the rest of the suite is single-threaded.
+# Any report fails the run (halt_on_error). CI runs the thread part (tools/run_tests.sh).
+#
+# Usage: bash tools/run_sanitizers.sh [address|thread|all]   (default: all)
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+
+# The suites whose cases run DCSlam with threaded_joins (each next to its immediate and
+# amortized twins) or check that the three schedules agree bit for bit.
+THREAD_TESTS='DcSlam.*:LocalMapSizes/DcSlamLinear.*:LocalMapSizes/DcSlamPastPoses.*:Modes/DcSlamAnytime.*'
+
+which="${1:-all}"
+case "$which" in
+  address|thread|all) ;;
+  *) echo "run_sanitizers: expected address, thread or all, got '$which'" >&2; exit 2 ;;
+esac
+
+build() {  # build <dir> <sanitizer>
+  cmake -S . -B "$1" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DDCSLAM_SANITIZE="$2" \
+    -DDCSLAM_BUILD_TESTS=ON -DDCSLAM_BUILD_BENCH=OFF -DDCSLAM_WERROR=ON >/dev/null
+  cmake --build "$1" --target dcslam_tests -j 2
+}
+
+if [[ "$which" == address || "$which" == all ]]; then
+  echo "== ASan + UBSan: build/asan"
+  build build/asan address
+  ASAN_OPTIONS=halt_on_error=1:detect_leaks=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
+    build/asan/tests/cpp/dcslam_tests --gtest_brief=1
+fi
+if [[ "$which" == thread || "$which" == all ]]; then
+  echo "== TSan: build/tsan ($THREAD_TESTS)"
+  build build/tsan thread
+  TSAN_OPTIONS=halt_on_error=1:second_deadlock_stack=1 \
+    build/tsan/tests/cpp/dcslam_tests --gtest_brief=1 --gtest_filter="$THREAD_TESTS"
+fi
