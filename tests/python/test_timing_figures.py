@@ -1,4 +1,4 @@
-"""tools/timing_figures.py on small hand-made dcslam_bench outputs."""
+"""studies/timing_figures.py on small hand-made dcslam_bench outputs."""
 
 import json
 
@@ -10,7 +10,7 @@ from script_loader import load_script
 
 @pytest.fixture(scope="module")
 def timing_figures():
-    return load_script("tools/timing_figures.py")
+    return load_script("studies/timing_figures.py")
 
 
 def bench_run(filter_name, step_seconds, features=10, total_seconds=None):

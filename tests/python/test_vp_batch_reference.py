@@ -1,4 +1,4 @@
-"""tools/vp_batch_reference.py: residual Jacobians, Gauss-Newton on small synthetic problems
+"""studies/vp_batch_reference.py: residual Jacobians, Gauss-Newton on small synthetic problems
 with a known answer, the association helpers, and a short Victoria Park smoke run."""
 
 import json
@@ -16,7 +16,7 @@ OFFSET = (3.78, 0.5, 0.0)
 
 @pytest.fixture(scope="module")
 def tool():
-    return load_script("tools/vp_batch_reference.py")
+    return load_script("studies/vp_batch_reference.py")
 
 
 def synthetic(steps=60, landmarks=12, noise=True, seed=1, fixed_first=True):

@@ -1,4 +1,4 @@
-"""tools/vp_join_linearisation.py: the dense numpy join on synthetic maps with a known answer,
+"""studies/vp_join_linearisation.py: the dense numpy join on synthetic maps with a known answer,
 the C++ D&C join against it on a Victoria Park prefix, and a short smoke run."""
 
 import dataclasses
@@ -15,7 +15,7 @@ from script_loader import load_script
 
 @pytest.fixture(scope="module")
 def tool():
-    return load_script("tools/vp_join_linearisation.py")
+    return load_script("studies/vp_join_linearisation.py")
 
 
 def two_maps(rng, feature_variance, pose_error, noise=0.0):

@@ -2,7 +2,7 @@
 
 On Victoria Park, D&C's final map lies about 0.6-1.5 m RMS from the batch least-squares
 optimum of its own data associations, the EKF's about 0.07-0.15 m
-(``tools/vp_batch_reference.py``). This tool separates the possible causes.
+(``studies/vp_batch_reference.py``). This tool separates the possible causes.
 
 (A) Same associations. D&C is run with unknown association; its resolved
 ``measurement_ids`` become known ids (rejected measurements dropped), and both filters are
@@ -45,7 +45,7 @@ is a poor approximation of it, and the join can only correct it linearly. The EK
 to the old map at every scan, does not accumulate that drift.
 
 Usage:
-    .venv/bin/python tools/vp_join_linearisation.py [--seed S] [--max-steps N]
+    .venv/bin/python studies/vp_join_linearisation.py [--seed S] [--max-steps N]
         [--split K] [--bin B] [--json OUT]
 
 An analysis tool: it reports numbers and asserts nothing. numpy/scipy only; the batch
@@ -69,7 +69,7 @@ from dcslam.pipeline import SlamPipeline
 
 
 def _load_batch_reference():
-    """tools/vp_batch_reference.py, which is a script beside this one, not a package module."""
+    """studies/vp_batch_reference.py, which is a script beside this one, not a package module."""
     path = Path(__file__).resolve().with_name("vp_batch_reference.py")
     spec = importlib.util.spec_from_file_location("vp_batch_reference", path)
     module = importlib.util.module_from_spec(spec)

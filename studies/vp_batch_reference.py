@@ -31,7 +31,7 @@ between the same landmark in two sets (paired by shared measurements), each near
 and beyond (``--near``, 150 m).
 
 Usage:
-    .venv/bin/python tools/vp_batch_reference.py [--seed S] [--max-steps N]
+    .venv/bin/python studies/vp_batch_reference.py [--seed S] [--max-steps N]
         [--local-map-features P] [--json OUT]
 
 This is an analysis tool, not a test of the project's map-agreement target: it reports

@@ -16,7 +16,7 @@ same run is repeated with every join's decision corrected by that truth
 
 Scores after ``estimate()``/``resolve()`` with ``dcslam.evaluation``; means over seeds.
 
-Usage: python tools/join_association_ceiling.py [--seeds 5] [--scenarios a,b]
+Usage: python studies/join_association_ceiling.py [--seeds 5] [--scenarios a,b]
 """
 
 from __future__ import annotations
