@@ -26,7 +26,7 @@ whole run but nearer D&C's for the first 6195 steps).
 
 The tool prints (1) for each filter how far its map lies from its own optimum (metres, and
 in the filter's own landmark covariance), (2) the shares of landmarks within 1 m and 2 m
-between maps and optima (:func:`dcslam.pipeline.map_agreement`, no ids), (3) distances
+between maps and optima (:func:`dcslam.metrics.map_agreement`, no ids), (3) distances
 between the same landmark in two sets (paired by shared measurements), each near the start
 and beyond (``--near``, 150 m).
 
@@ -182,7 +182,7 @@ def compare(runs: Dict[str, dict], near_radius: float, consensus: Optional["Batc
             f"{a} batch": runs[a]["batch"].landmarks, f"{b} batch": runs[b]["batch"].landmarks}
     if consensus is not None:
         sets["consensus batch"] = consensus.landmarks
-    from dcslam.pipeline import map_agreement
+    from dcslam.metrics import map_agreement
 
     couples = [(f"{a} map", f"{b} map"), (f"{a} batch", f"{b} batch"), (f"{a} map", f"{b} batch"),
                (f"{b} map", f"{a} batch"), (f"{a} map", f"{a} batch"), (f"{b} map", f"{b} batch")]
@@ -270,7 +270,7 @@ def format_report(report: Dict) -> str:
                   f"{c['landmarks']} landmarks, {c['iterations']} GN iterations, converged {c['converged']}, "
                   f"chi2/dof {c['chi2']:.6g} / {c['dof']} = {c['chi2_per_dof']:.4f}, max abs(J'r) {c['gradient_max']:.1e}"]
     lines += ["", "2. Share of A's landmarks within r of a landmark of B / of B's within r of A "
-              "(dcslam.pipeline.map_agreement); near/far: the counted map's own landmarks"]
+              "(dcslam.metrics.map_agreement); near/far: the counted map's own landmarks"]
     rows = [[row["first"], row["second"]] + [f"{row[key][0]:.3f} / {row[key][1]:.3f}"
                                               for key in ("1m", "2m", "1m_near", "1m_far", "2m_near", "2m_far")]
             for row in report["shares"]]
