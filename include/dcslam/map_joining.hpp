@@ -27,7 +27,7 @@ namespace dcslam {
 // A research instrument, never set in a real run: the landmark each feature id stands for
 // (from a simulator; < 0 for clutter) and how a join's decision is corrected with it, to
 // measure how far the join association is from what its two maps allow
-// (tools/join_association_ceiling.py, docs/data_association.md). The oracle pairing: each
+// (studies/join_association_ceiling.py, docs/data_association.md). The oracle pairing: each
 // feature of m2, in order, with the first unused feature of m1 of its landmark.
 struct JoinOracle {
   enum class Mode {
@@ -82,7 +82,7 @@ struct JoinOptions {
 };
 
 // What a join's association saw and decided, by feature id: for diagnosis against a truth
-// (tools/duplicate_diagnosis.py). O(n) ids a join.
+// (studies/duplicate_diagnosis.py). O(n) ids a join.
 struct JoinPairingRecord {
   std::vector<std::int64_t> first_ids, second_ids;              // features of m1 and m2
   std::vector<std::pair<std::int64_t, std::int64_t>> pairs;     // (id in m1, id in m2)

@@ -39,13 +39,13 @@ struct OdometryNoise {
   // one 40 Hz sample; a segment of length dt gets variance sigma^2 * sample_period / dt.
   // The real errors are mostly systematic (slip, steering bias) and do not average out over
   // a scan as white noise would, hence values well above the sensors' resolution; chosen
-  // with tools/vp_noise_study.py (docs/victoria_park.md).
+  // with studies/vp_noise_study.py (docs/victoria_park.md).
   double sigma_speed = 0.6;
   double sigma_steering = 0.1;
   double sample_period = 0.025;
   // Additive floor per second of motion, in the robot frame: keeps Q positive definite when
   // the car stands still and covers what the two-input model leaves out (slip, wheel radius,
-  // bumps). The xy value is set by the long-span join test of tools/vp_noise_study.py: errors
+  // bumps). The xy value is set by the long-span join test of studies/vp_noise_study.py: errors
   // that persist over minutes, which white input noise underrates.
   double floor_sigma_xy = 0.14;   // m / sqrt(s)
   double floor_sigma_phi = 0.002;  // rad / sqrt(s)

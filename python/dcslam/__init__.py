@@ -13,8 +13,9 @@ from . import datasets
 from .consistency import chi2_threshold, consistency_index, nees
 from .simulation import REVISIT_SCENARIOS, Simulation, SimulationConfig, revisit_scenario, simulate
 from .slam import DCSlam, DCSlamStats, EkfSlam, Estimate, SlamStats
-from . import evaluation, io, pipeline
-from .pipeline import PipelineResult, SlamPipeline, gps_alignment
+from . import evaluation, io, metrics, pipeline
+from .metrics import gps_alignment
+from .pipeline import PipelineResult, SlamPipeline
 
 __all__ = [
     "__version__",
@@ -38,6 +39,7 @@ __all__ = [
     "chi2_threshold",
     "consistency_index",
     "io",
+    "metrics",
     "pipeline",
     "PipelineResult",
     "SlamPipeline",

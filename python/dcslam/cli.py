@@ -140,7 +140,8 @@ def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Pat
     """Checks the output folder and builds every pipeline first (bad options fail before any
     work), runs them, writes and summarises the results. ``hint`` is added to the message of a
     refused configuration."""
-    from .pipeline import SlamPipeline, gps_alignment, map_agreement, map_trajectory
+    from .metrics import gps_alignment, map_agreement, map_trajectory
+    from .pipeline import SlamPipeline
 
     _require_writable_folder(output)
     show_progress = console.is_terminal if progress is None else progress

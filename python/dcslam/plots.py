@@ -16,7 +16,8 @@ import matplotlib.pyplot as plt  # noqa: E402  (after the backend is chosen)
 import numpy as np  # noqa: E402
 from matplotlib.collections import EllipseCollection  # noqa: E402
 
-from .pipeline import GpsAlignment, PipelineResult  # noqa: E402
+from .metrics import GpsAlignment  # noqa: E402
+from .pipeline import PipelineResult  # noqa: E402
 
 __all__ = ["CHI2_2DOF_95", "landmark_blocks", "landmark_ellipses", "plot_map", "plot_timing"]
 

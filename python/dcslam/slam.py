@@ -276,7 +276,7 @@ class DCSlam(SlamFilter):
         maps' features) and ``pairs`` ((k, 2) int64 array of (id in the first map, id in the
         second) matched). Empty arrays while a join is pending. Ids are those ``update()``
         returned (before ``resolve()``), so a simulator's ids label them; see
-        ``tools/duplicate_diagnosis.py --joins``.
+        ``studies/duplicate_diagnosis.py --joins``.
 
         With a join oracle set (:meth:`set_join_oracle`), each dict also audits the oracle's
         pairing through the join's own model: ``truth_pairs`` ((t, 2) int64, as ``pairs``),
@@ -310,7 +310,7 @@ class DCSlam(SlamFilter):
         ``min_first_features`` corrects only the joins whose first map holds at least that
         many features (the others are audited and left as they are), to tell which joins'
         mistakes decide the final map. Only before the first ``predict()``.
-        See ``tools/join_association_ceiling.py``."""
+        See ``studies/join_association_ceiling.py``."""
         features = np.asarray(feature_ids)
         landmarks = np.asarray(landmark_ids)
         if features.ndim != 1 or landmarks.shape != features.shape:

@@ -1,4 +1,5 @@
-"""Imports the project's scripts (tools/, benchmarks/), which are files, not packages."""
+"""Imports a benchmark script (benchmarks/), which is a file, not a package module, to test a
+part of it that has no command line of its own (test_gtsam_compare.py: its GTSAM factor)."""
 
 import importlib.util
 from pathlib import Path

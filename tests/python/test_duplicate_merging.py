@@ -31,7 +31,7 @@ def test_two_close_landmarks_seen_together_stay_two():
 
 @pytest.mark.parametrize("filter_cls", [dcslam.EkfSlam])
 def test_merging_removes_duplicates_without_wrong_merges(filter_cls):
-    # D&C is left out: its duplicates come from its joins (tools/duplicate_diagnosis.py), and
+    # D&C is left out: its duplicates come from its joins (studies/duplicate_diagnosis.py), and
     # merging inside local maps does not reduce them yet (BENCHMARKS.md, revisits).
     sim = dcslam.revisit_scenario("lawn_overlap", seed=0)
     _, _, before, _ = run(sim, filter_cls, merge_radius=0.0)

@@ -1,4 +1,4 @@
-"""SlamPipeline, GPS alignment, output writers and plots, on short synthetic runs."""
+"""SlamPipeline, output writers and plots, on short synthetic runs."""
 
 import json
 import math
@@ -10,7 +10,7 @@ import pytest
 import dcslam
 from dcslam import geometry as g
 from dcslam import io
-from dcslam.pipeline import SlamPipeline, gps_alignment, gps_outliers, rigid_fit_2d
+from dcslam.pipeline import SlamPipeline
 from dcslam.plots import CHI2_2DOF_95, landmark_blocks, landmark_ellipses, plot_map, plot_timing
 
 
@@ -105,53 +105,6 @@ def test_pipeline_options(corridor, config):
         SlamPipeline(corridor, config, max_steps=-1)
     with pytest.raises(ValueError):
         SlamPipeline(corridor, dcslam.SlamConfig(association="psychic"))
-
-
-def test_rigid_fit_recovers_an_exact_transform():
-    rng = np.random.default_rng(0)
-    source = rng.uniform(-50, 50, size=(20, 2))
-    R, t = rotation(2.5), np.array([-7.0, 13.0])
-    fitted_R, fitted_t = rigid_fit_2d(source, source @ R.T + t)
-    np.testing.assert_allclose(fitted_R, R, atol=1e-12)
-    np.testing.assert_allclose(fitted_t, t, atol=1e-10)
-    with pytest.raises(ValueError):
-        rigid_fit_2d(source[:1], source[:1])
-
-
-def test_gps_outliers_flags_jumps_and_recovers_after_a_gap():
-    t = np.arange(0, 20, 0.2)
-    gps = np.column_stack([t, 5.0 * t, np.zeros_like(t)])  # 5 m/s along x
-    gps[30, 1:] = [300.0, -40.0]           # a single wild fix
-    gps[60:63, 2] += 50.0                  # a run of three bad fixes
-    gap = np.column_stack([t[-1] + 60.0, 5.0 * t[-1] + 250.0, 0.0])  # a real jump across a 60 s gap
-    gps = np.concatenate([gps, gap])
-    outlier = gps_outliers(gps, max_speed=20.0)
-    assert sorted(np.flatnonzero(outlier)) == [30, 60, 61, 62]
-
-
-def test_gps_alignment_recovers_rotation_translation_and_rms():
-    rng = np.random.default_rng(1)
-    times = np.linspace(0.0, 300.0, 1201)
-    # A wavy drive in the trajectory's own frame.
-    trajectory = np.column_stack([3.0 * times, 40.0 * np.sin(times / 30.0), np.zeros_like(times)])
-    R, t = rotation(-0.7), np.array([120.0, -45.0])
-    gps_times = np.linspace(5.0, 295.0, 400)
-    true_positions = np.column_stack([np.interp(gps_times, times, trajectory[:, i]) for i in range(2)])
-    gps_xy = true_positions @ R.T + t + rng.normal(0, 0.5, size=true_positions.shape)
-    gps = np.column_stack([gps_times, gps_xy])
-    gps[100, 1:] += [400.0, 0.0]           # an outlier
-    gps = np.concatenate([gps, [[400.0, 0.0, 0.0]]])  # a fix after the trajectory ends
-    alignment = gps_alignment(times, trajectory, gps)
-    assert alignment.outliers == 1 and len(alignment.times) == 399
-    assert alignment.yaw == pytest.approx(-0.7, abs=2e-3)
-    np.testing.assert_allclose(alignment.translation, t, atol=0.3)
-    assert alignment.rms == pytest.approx(0.5 * math.sqrt(2), rel=0.15)
-    np.testing.assert_allclose(alignment.apply(alignment.trajectory_at_gps), alignment.gps_used, atol=3.0)
-    pose = alignment.apply_poses(np.array([[1.0, 2.0, 0.5]]))
-    np.testing.assert_allclose(pose[0, :2], R @ [1.0, 2.0] + t, atol=0.3)
-    assert pose[0, 2] == pytest.approx(0.5 - 0.7, abs=2e-3)
-    with pytest.raises(ValueError, match="GPS"):
-        gps_alignment(times, trajectory, gps[:1])
 
 
 def test_tum_round_trip_and_format(tmp_path):

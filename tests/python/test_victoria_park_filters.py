@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 import dcslam
-from dcslam.pipeline import SlamPipeline, gps_alignment, map_agreement, map_trajectory
+from dcslam.metrics import gps_alignment, map_agreement, map_trajectory
+from dcslam.pipeline import SlamPipeline
 
 SCANS = 1500
 

@@ -1,8 +1,7 @@
-"""tools/vp_join_linearisation.py: the dense numpy join on synthetic maps with a known answer,
-the C++ D&C join against it on a Victoria Park prefix, and a short smoke run."""
+"""The dense join oracle on synthetic maps with a known answer, and the C++ D&C join against it
+on a Victoria Park prefix."""
 
 import dataclasses
-import json
 
 import numpy as np
 import pytest
@@ -10,12 +9,9 @@ import pytest
 from dcslam import datasets, geometry
 from dcslam.pipeline import SlamPipeline
 
-from script_loader import load_script
-
-
-@pytest.fixture(scope="module")
-def tool():
-    return load_script("tools/vp_join_linearisation.py")
+from oracles import join_inputs
+from oracles.dense_join import (dense_join, join_constraints, landmarks_of, shared_pairs, split_costs,
+                                stacked_difference, state_from_map)
 
 
 def two_maps(rng, feature_variance, pose_error, noise=0.0):
@@ -46,33 +42,33 @@ def two_maps(rng, feature_variance, pose_error, noise=0.0):
     return x1, P1, ids1, x2, P2, ids2, truth, R1
 
 
-def test_dense_join_recovers_the_truth_from_exact_maps(tool):
+def test_dense_join_recovers_the_truth_from_exact_maps():
     # m1's robot is 1.8 m and 0.25 rad off while both maps' features are exact and nearly
     # certain: the constrained MAP must put R1 where m2's shape fits m1's (a non-linear move).
     rng = np.random.default_rng(0)
     x1, P1, ids1, x2, P2, ids2, truth, R1 = two_maps(rng, 1e-10, np.array([1.5, -1.0, -0.25]))
-    joined = tool.dense_join(x1, P1, ids1, x2, P2, ids2, tolerance=1e-12)
+    joined = dense_join(x1, P1, ids1, x2, P2, ids2, tolerance=1e-12)
     assert joined.converged and joined.iterations > 2
     np.testing.assert_allclose(joined.state[:3], R1, atol=1e-6)
     assert sorted(joined.features) == sorted(truth)
     for i, position in truth.items():
         np.testing.assert_allclose(joined.features[i], position, atol=1e-6)
-    constraints, _ = tool.join_constraints(joined.state, len(x1), tool.shared_pairs(ids1, ids2))
+    constraints, _ = join_constraints(joined.state, len(x1), shared_pairs(ids1, ids2))
     assert len(constraints) == 8 and np.max(np.abs(constraints)) < 1e-9
     # Without shared landmarks there is nothing to impose: the prior means come back.
-    alone = tool.dense_join(x1, P1, ids1, x2, P2, [100 + i for i in ids2])
+    alone = dense_join(x1, P1, ids1, x2, P2, [100 + i for i in ids2])
     assert alone.iterations == 0 and alone.converged
     np.testing.assert_array_equal(alone.state, np.concatenate([x1, x2]))
 
 
-def test_dense_join_meets_the_optimality_conditions_of_noisy_maps(tool):
+def test_dense_join_meets_the_optimality_conditions_of_noisy_maps():
     rng = np.random.default_rng(1)
     x1, P1, ids1, x2, P2, ids2, _, _ = two_maps(rng, 0.05, np.array([0.8, 0.5, 0.1]), noise=0.3)
-    joined = tool.dense_join(x1, P1, ids1, x2, P2, ids2)
+    joined = dense_join(x1, P1, ids1, x2, P2, ids2)
     assert joined.converged
-    pairs = tool.shared_pairs(ids1, ids2)
+    pairs = shared_pairs(ids1, ids2)
     assert [(ids1[i], ids2[j]) for i, j in pairs] == [(3, 3), (4, 4), (5, 5), (6, 6)]
-    constraints, C = tool.join_constraints(joined.state, len(x1), pairs)
+    constraints, C = join_constraints(joined.state, len(x1), pairs)
     assert np.max(np.abs(constraints)) < 1e-9
     # Lagrange: the cost's gradient P0^-1 (x - x0) lies in the row space of dc/dx.
     P0 = np.block([[P1, np.zeros((len(x1), len(x2)))], [np.zeros((len(x2), len(x1))), P2]])
@@ -80,81 +76,63 @@ def test_dense_join_meets_the_optimality_conditions_of_noisy_maps(tool):
     gradient = np.linalg.solve(P0, difference)
     multipliers = np.linalg.lstsq(C.T, gradient, rcond=None)[0]
     assert np.max(np.abs(C.T @ multipliers - gradient)) < 1e-8 * np.max(np.abs(gradient))
-    costs = tool.split_costs(joined.state, x1, P1, x2, P2)
+    costs = split_costs(joined.state, x1, P1, x2, P2)
     assert costs["total"] == pytest.approx(difference @ gradient, rel=1e-9)
     assert costs["m1"] > 0 and costs["m2"] > 0
     # From a perturbed start Gauss-Newton lands on the same answer.
     start = joined.state + 0.5 * rng.normal(size=len(difference))
-    np.testing.assert_allclose(tool.dense_join(x1, P1, ids1, x2, P2, ids2, initial=start).state, joined.state,
+    np.testing.assert_allclose(dense_join(x1, P1, ids1, x2, P2, ids2, initial=start).state, joined.state,
                                atol=1e-8)
     # The joined global map, moved back into the two frames, is the stacked solution.
     R1 = joined.state[:3]
     robot = geometry.compose(R1, joined.state[len(x1):len(x1) + 3])
-    rebuilt = tool.state_from_map(joined.features, R1, robot, ids1, ids2)
-    np.testing.assert_allclose(tool.stacked_difference(rebuilt, joined.state, len(x1)), 0.0, atol=1e-9)
+    rebuilt = state_from_map(joined.features, R1, robot, ids1, ids2)
+    np.testing.assert_allclose(stacked_difference(rebuilt, joined.state, len(x1)), 0.0, atol=1e-9)
 
 
-def test_helpers(tool):
+def test_known_id_replay_and_split():
     steps = datasets.victoria_park().steps[:3]
     ids = [np.full(len(s.z), -1, dtype=np.int64) for s in steps]
     ids[1][:2] = [7, 8]
     ids[2][:1] = [8]
-    known = tool.known_steps(steps, ids)
+    known = join_inputs.known_steps(steps, ids)
     assert [len(s.z) for s in known] == [0, 2, 1] and len(known[1].R) == 2
     np.testing.assert_array_equal(known[1].landmark_ids, [7, 8])
     np.testing.assert_array_equal(known[1].z, np.asarray(steps[1].z)[:2])
-    assert tool.first_seen([s.landmark_ids for s in known]) == {7: 1, 8: 1}
-    assert tool.reproducible_split(known, 3) == 2
-    assert tool.local_map_span(5, [4, 9], 12) == (4, 9)
-    assert tool.local_map_span(9, [4, 9], 12) == (9, 12)
+    assert join_inputs.first_seen([s.landmark_ids for s in known]) == {7: 1, 8: 1}
+    assert join_inputs.reproducible_split(known, 3) == 2
+
+
+def largest_distance(first, second):
+    """The largest distance between the same landmark in two maps with the same ids."""
+    return max(float(np.linalg.norm(first[i] - second[i])) for i in second)
 
 
 @pytest.fixture(scope="module")
-def victoria_park_prefix(tool):
+def victoria_park_prefix():
     """The first 1200 steps with D&C's resolved ids as known ids, and the known-id config."""
     vp = datasets.victoria_park()
     steps = vp.steps[:1200]
     config = vp.slam_config(seed=0)
     unknown = SlamPipeline(steps, config, filter="dc").run()
     known = dataclasses.replace(config, association="known", join_association="known")
-    return tool.known_steps(steps, unknown.measurement_ids), known
+    return join_inputs.known_steps(steps, unknown.measurement_ids), known
 
 
-def test_dc_join_equals_the_dense_join_on_victoria_park(tool, victoria_park_prefix):
+def test_dc_join_equals_the_dense_join_on_victoria_park(victoria_park_prefix):
     steps, config = victoria_park_prefix
-    split = tool.reproducible_split(steps, 750)
-    x1, P1, ids1, _ = tool.ekf_map(steps[:split], config)
-    x2, P2, ids2, _ = tool.ekf_map(steps[split:], config)
-    joined = tool.dense_join(x1, P1, ids1, x2, P2, ids2)
-    assert joined.converged and len(tool.shared_pairs(ids1, ids2)) > 20
+    split = join_inputs.reproducible_split(steps, 750)
+    x1, P1, ids1, _ = join_inputs.ekf_map(steps[:split], config)
+    x2, P2, ids2, _ = join_inputs.ekf_map(steps[split:], config)
+    joined = dense_join(x1, P1, ids1, x2, P2, ids2)
+    assert joined.converged and len(shared_pairs(ids1, ids2)) > 20
     dc = SlamPipeline(steps, dataclasses.replace(config, local_map_features=len(ids1), keep_local_map_poses=True),
                       filter="dc").run().estimate
     np.testing.assert_array_equal(dc.past_pose_ids, [split])
     dc_map = {int(i): p for i, p in zip(dc.landmark_ids, dc.landmarks)}
     assert sorted(dc_map) == sorted(joined.features)
-    assert max(tool.distances(dc_map, joined.features).values()) < 1e-6
+    assert largest_distance(dc_map, joined.features) < 1e-6
     # Not vacuous: the join moved the maps well beyond that (m2 placed at its prior means).
-    unjoined = {**{i: np.asarray(geometry.transform_point(x1[:3], p)) for i, p in tool.landmarks_of(x2, ids2).items()},
-                **tool.landmarks_of(x1, ids1)}
-    assert max(tool.distances(unjoined, joined.features).values()) > 0.1
-
-
-def test_victoria_park_prefix_end_to_end(tool, tmp_path, capsys):
-    out = tmp_path / "report.json"
-    report = tool.main(["--max-steps", "600", "--split", "300", "--json", str(out)])
-    printed = capsys.readouterr().out
-    assert "(A) Same associations" in printed and "(B) One join at step 300" in printed
-    saved = json.loads(out.read_text())
-    assert saved["steps"] == 600 and saved["seed"] == 0
-    same = saved["same_associations"]
-    assert {"landmarks", "batch", "ekf", "dc", "bins", "local_maps", "large_joins"} <= set(same)
-    assert same["batch"]["converged"] and same["ekf"]["count"] == same["dc"]["count"] == same["landmarks"]
-    assert sum(row["dc"]["count"] for row in same["bins"]) == same["landmarks"]
-    join = saved["one_join"]
-    assert {"split", "m1_features", "m2_features", "pairs", "iterations", "converged", "join_vs_batch",
-            "ekf_all_vs_batch", "dc", "costs", "m2_local"} <= set(join)
-    assert join["split"] == 300 and join["converged"]
-    assert {"join", "ekf_all", "join_from_ekf_all"} <= set(join["costs"])
-    assert join["costs"]["join"]["total"] <= join["costs"]["ekf_all"]["total"]
-    assert join["m2_local"]["batch"]["converged"]
-    assert report["one_join"]["dc"]["past_pose_ids"] == join["dc"]["past_pose_ids"]
+    unjoined = {**{i: np.asarray(geometry.transform_point(x1[:3], p)) for i, p in landmarks_of(x2, ids2).items()},
+                **landmarks_of(x1, ids1)}
+    assert largest_distance(unjoined, joined.features) > 0.1

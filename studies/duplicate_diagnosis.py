@@ -36,8 +36,8 @@ is labelled with its landmark, and the tool counts the true pairs ("pairable"), 
 made, the correct and the wrong ones (and of the wrong, those whose true partner was there),
 and the true pairs left unmade by reason; the totals are split by join size.
 
-Usage: python tools/duplicate_diagnosis.py SCENARIO [--seed 0] [--filter dc|ekf] [--list] [--joins]
-       python tools/duplicate_diagnosis.py SCENARIO --seeds N [--filter dc|ekf]   (tables summed over seeds)
+Usage: python studies/duplicate_diagnosis.py SCENARIO [--seed 0] [--filter dc|ekf] [--list] [--joins]
+       python studies/duplicate_diagnosis.py SCENARIO --seeds N [--filter dc|ekf]   (tables summed over seeds)
        (SCENARIO: a dcslam.REVISIT_SCENARIOS name or a trajectory, e.g. lawn_mowing)
 """
 

@@ -19,7 +19,7 @@ corrected (the smaller ones decide as they are): which joins' decisions make the
 
 Scores after ``estimate()``/``resolve()`` with ``dcslam.evaluation``; means over seeds.
 
-Usage: python tools/join_association_ceiling.py [--seeds 5] [--scenarios a,b] [--min-first-features N]
+Usage: python studies/join_association_ceiling.py [--seeds 5] [--scenarios a,b] [--min-first-features N]
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 On Victoria Park, D&C's final map lies about 0.6-1.5 m RMS from the batch least-squares
 optimum of its own data associations, the EKF's about 0.07-0.15 m
-(``tools/vp_batch_reference.py``). This tool separates the possible causes.
+(``studies/vp_batch_reference.py``). This tool separates the possible causes.
 
 (A) Same associations. D&C is run with unknown association; its resolved
 ``measurement_ids`` become known ids (rejected measurements dropped), and both filters are
@@ -45,98 +45,42 @@ is a poor approximation of it, and the join can only correct it linearly. The EK
 to the old map at every scan, does not accumulate that drift.
 
 Usage:
-    .venv/bin/python tools/vp_join_linearisation.py [--seed S] [--max-steps N]
+    .venv/bin/python studies/vp_join_linearisation.py [--seed S] [--max-steps N]
         [--split K] [--bin B] [--json OUT]
 
-An analysis tool: it reports numbers and asserts nothing. numpy/scipy only; the batch
-optimum is :func:`vp_batch_reference.batch_optimum`.
+An analysis tool: it reports numbers and asserts nothing. numpy/scipy only; the batch optimum,
+the dense join and the known-id replay are the tests' oracles (``tests/python/oracles/``:
+``batch_least_squares.py``, ``dense_join.py``, ``join_inputs.py``).
 """
 
 import argparse
 import dataclasses
-import importlib.util
 import json
+import sys
 import time
 from pathlib import Path
-from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
+from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
-import scipy.linalg
 
-from dcslam import EkfSlam, geometry
-from dcslam.datasets import Step
 from dcslam.pipeline import SlamPipeline
 
+# vp_batch_reference.py lies beside this script, which puts its folder first on sys.path.
+import vp_batch_reference as batch_reference
 
-def _load_batch_reference():
-    """tools/vp_batch_reference.py, which is a script beside this one, not a package module."""
-    path = Path(__file__).resolve().with_name("vp_batch_reference.py")
-    spec = importlib.util.spec_from_file_location("vp_batch_reference", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-batch_reference = _load_batch_reference()
+# The oracles are kept beside the tests that check them so that the numbers this study
+# reports come from tested code; a study is a script, not a package, so it finds tests/python
+# by path.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "python"))
+from oracles.batch_least_squares import batch_optimum  # noqa: E402
+from oracles.dense_join import (dense_join, join_constraints, landmarks_of, shared_pairs,  # noqa: E402
+                                split_costs, stacked_difference, state_from_map)
+from oracles.join_inputs import ekf_map, first_seen, known_steps, reproducible_split  # noqa: E402
 
 
 # ---------------------------------------------------------------------------------------
-# Known-id runs
+# Distances between maps
 # ---------------------------------------------------------------------------------------
-
-def known_steps(steps: Sequence, measurement_ids: Sequence) -> List[Step]:
-    """``steps`` with ``landmark_ids`` = ``measurement_ids`` (per step, (m,) ids), the
-    measurements with id < 0 dropped: a run's associations replayed in ``"known"`` mode."""
-    out = []
-    for step, ids in zip(steps, measurement_ids):
-        ids = np.asarray(ids, dtype=np.int64)
-        keep = ids >= 0
-        out.append(Step(step.u, step.Q, np.asarray(step.z)[keep], np.asarray(step.R)[keep],
-                        t=getattr(step, "t", None), landmark_ids=ids[keep]))
-    return out
-
-
-def ekf_map(steps: Sequence, config) -> Tuple[np.ndarray, np.ndarray, List[int], np.ndarray]:
-    """EkfSlam over ``steps`` (``config`` in ``"known"`` association), from the origin with
-    zero covariance.
-
-    Returns ``(x, P, ids, poses)``: the final state ``[robot; f_0; f_1; ...]`` (3 + 2n,),
-    its covariance, the feature ids in state order, and the (N, 3) robot pose after each
-    step.
-    """
-    slam = EkfSlam(config)
-    poses = np.empty((len(steps), 3))
-    for k, step in enumerate(steps):
-        slam.predict(step.u, step.Q)
-        slam.update(step.z, step.R, step.landmark_ids)
-        poses[k] = slam.pose()
-    estimate = slam.estimate()
-    x = np.concatenate([estimate.robot, np.asarray(estimate.landmarks, dtype=float).ravel()])
-    return x, np.array(estimate.covariance, dtype=float), [int(i) for i in estimate.landmark_ids], poses
-
-
-def landmarks_of(x: np.ndarray, ids: Sequence[int], offset: int = 0) -> Dict[int, np.ndarray]:
-    """Feature positions by id of a state whose features start at ``offset + 3``."""
-    return {int(i): x[offset + 3 + 2 * n:offset + 5 + 2 * n].copy() for n, i in enumerate(ids)}
-
-
-def first_seen(measurement_ids: Sequence) -> Dict[int, int]:
-    """Landmark id -> the first step with a measurement of it."""
-    first: Dict[int, int] = {}
-    for k, ids in enumerate(measurement_ids):
-        for i in np.asarray(ids):
-            if int(i) >= 0:
-                first.setdefault(int(i), k)
-    return first
-
-
-def reproducible_split(steps: Sequence, k: int) -> int:
-    """The latest split at or before ``k`` that D&C can make with ``local_map_features`` =
-    the number of landmarks of ``steps[:split]``: a local map closes at the step its size
-    reaches the limit, so the split must follow a step that saw a new landmark. (D&C makes no
-    other split if ``steps[split:]`` see fewer landmarks.)"""
-    return 1 + max(step for step in first_seen([s.landmark_ids for s in steps]).values() if step < k)
-
 
 def distances(first: Dict[int, np.ndarray], second: Dict[int, np.ndarray], ids=None) -> Dict[int, float]:
     """Distance between the same landmark in two maps, by id (``ids`` or those they share)."""
@@ -147,114 +91,6 @@ def distances(first: Dict[int, np.ndarray], second: Dict[int, np.ndarray], ids=N
 def summary(distance: Dict[int, float]) -> Dict[str, float]:
     """count, RMS, max and share within 1 m of distances by id."""
     return batch_reference.distance_summary(np.array(list(distance.values())))
-
-
-# ---------------------------------------------------------------------------------------
-# The dense join
-# ---------------------------------------------------------------------------------------
-
-class DenseJoin(NamedTuple):
-    """The dense join's answer: the joined map by id, the stacked state ``[x1; x2]`` at the
-    solution, the linearisation points used and whether the last step met the tolerance."""
-
-    features: Dict[int, np.ndarray]
-    state: np.ndarray
-    iterations: int
-    converged: bool
-
-
-def shared_pairs(ids1: Sequence[int], ids2: Sequence[int]) -> List[Tuple[int, int]]:
-    """(i, j): m1's i-th and m2's j-th feature carry the same id."""
-    where = {int(lid): i for i, lid in enumerate(ids1)}
-    return [(where[int(lid)], j) for j, lid in enumerate(ids2) if int(lid) in where]
-
-
-def join_constraints(state: np.ndarray, size1: int, pairs: Sequence[Tuple[int, int]]):
-    """``c(x) = f1_i - (R1 ⊕ f2_j)`` stacked over ``pairs`` and its Jacobian (2r, N) at the
-    stacked ``state = [x1; x2]``, ``size1 = len(x1)``."""
-    c = np.empty(2 * len(pairs))
-    C = np.zeros((2 * len(pairs), len(state)))
-    R1 = state[:3]
-    for row, (i, j) in enumerate(pairs):
-        a, b, r = 3 + 2 * i, size1 + 3 + 2 * j, 2 * row
-        moved, J_pose, J_point = geometry.transform_point(R1, state[b:b + 2], jacobians=True)
-        c[r:r + 2] = state[a:a + 2] - np.asarray(moved)
-        C[r:r + 2, a:a + 2] = np.eye(2)
-        C[r:r + 2, :3] = -np.asarray(J_pose)
-        C[r:r + 2, b:b + 2] = -np.asarray(J_point)
-    return c, C
-
-
-def stacked_difference(a: np.ndarray, b: np.ndarray, size1: int) -> np.ndarray:
-    """``a - b`` for stacked states, the two robots' headings wrapped (a state built from
-    another map may hold the same heading on the other side of ±pi)."""
-    difference = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
-    for angle in (2, size1 + 2):
-        difference[angle] = geometry.wrap_angle(difference[angle])
-    return difference
-
-
-def dense_join(x1, P1, ids1, x2, P2, ids2, max_iterations: int = 100, tolerance: float = 1e-9,
-               initial: Optional[np.ndarray] = None) -> DenseJoin:
-    """Constrained MAP of two maps, m2 expressed in m1's robot frame R1 (see the module
-    docstring), by Gauss-Newton from ``initial`` (default: the prior means ``[x1; x2]``).
-
-    Stops when no coordinate moves by more than ``tolerance`` or after ``max_iterations``
-    linearisation points. The joined map holds m1's features and ``R1 ⊕`` m2's unmatched
-    ones.
-    """
-    x1, x2 = np.asarray(x1, dtype=float), np.asarray(x2, dtype=float)
-    size1 = len(x1)
-    x0 = np.concatenate([x1, x2])
-    P0 = scipy.linalg.block_diag(P1, P2)
-    pairs = shared_pairs(ids1, ids2)
-    # Without shared features nothing constrains the prior: its means are the answer.
-    state, iterations, converged = x0.copy(), 0, not pairs
-    if pairs and initial is not None:
-        state = np.asarray(initial, dtype=float).copy()
-    while not converged and iterations < max_iterations:
-        iterations += 1
-        c, C = join_constraints(state, size1, pairs)
-        PCt = P0 @ C.T
-        innovation = -c - C @ stacked_difference(x0, state, size1)
-        updated = x0 + PCt @ scipy.linalg.cho_solve(scipy.linalg.cho_factor(C @ PCt), innovation)
-        converged = np.max(np.abs(stacked_difference(updated, state, size1))) < tolerance
-        state = updated
-    features = landmarks_of(state, ids1)
-    R1 = state[:3]
-    matched = {j for _, j in pairs}
-    for j, lid in enumerate(ids2):
-        if j not in matched:
-            features[int(lid)] = np.asarray(geometry.transform_point(R1, state[size1 + 3 + 2 * j:size1 + 5 + 2 * j]))
-    return DenseJoin(features, state, iterations, converged)
-
-
-def split_costs(state: np.ndarray, x1, P1, x2, P2) -> Dict[str, float]:
-    """``|x - x0|^2_{P0^-1}`` at the stacked ``state``, split into m1's part (``m1``) and
-    m2's (``m2``), with how far each part's robot moved (``*_robot_move`` metres,
-    ``*_heading_move`` radians) and its features at most (``*_feature_move`` metres), from
-    the prior means and in the part's own frame."""
-    size1 = len(x1)
-    difference = stacked_difference(state, np.concatenate([x1, x2]), size1)
-    out = {}
-    for name, part, P in (("m1", difference[:size1], P1), ("m2", difference[size1:], P2)):
-        out[name] = float(part @ scipy.linalg.cho_solve(scipy.linalg.cho_factor(P), part))
-        out[f"{name}_robot_move"] = float(np.linalg.norm(part[:2]))
-        out[f"{name}_heading_move"] = float(abs(part[2]))
-        out[f"{name}_feature_move"] = float(np.max(np.linalg.norm(part[3:].reshape(-1, 2), axis=1), initial=0.0))
-    out["total"] = out["m1"] + out["m2"]
-    return out
-
-
-def state_from_map(features: Dict[int, np.ndarray], pose_at_split, robot, ids1, ids2) -> np.ndarray:
-    """The stacked state ``[x1; x2]`` a global map implies: m1's robot at ``pose_at_split``
-    and its features where the map has them, m2's robot (``robot``, the map's final pose) and
-    features moved into that pose's frame."""
-    pose_at_split = np.asarray(pose_at_split, dtype=float)
-    x1 = [pose_at_split] + [features[i] for i in ids1]
-    x2 = [np.asarray(geometry.compose(geometry.invert(pose_at_split), robot))]
-    x2 += [np.asarray(geometry.inverse_transform_point(pose_at_split, features[i])) for i in ids2]
-    return np.concatenate([np.ravel(v) for v in x1 + x2])
 
 
 # ---------------------------------------------------------------------------------------
@@ -344,8 +180,7 @@ def one_join(steps: Sequence, config, sensor_offset, split: int, everything, bat
     }
 
     tail = steps[split:]
-    local = batch_reference.batch_optimum(tail, [s.landmark_ids for s in tail], sensor_offset, poses2,
-                                          landmarks_of(x2, ids2))
+    local = batch_optimum(tail, [s.landmark_ids for s in tail], sensor_offset, poses2, landmarks_of(x2, ids2))
     out["m2_local"] = {
         "batch": {"iterations": local.iterations, "converged": local.converged, "chi2_per_dof": local.chi2_per_dof},
         "ekf_vs_batch": summary(distances(landmarks_of(x2, ids2), local.landmarks)),
@@ -452,8 +287,8 @@ def main(argv: Optional[Sequence[str]] = None) -> Dict:
     known = known_steps(steps, unknown.measurement_ids)
     known_config = dataclasses.replace(config, association="known", join_association="known")
     everything = ekf_map(known, known_config)
-    batch = batch_reference.batch_optimum(known, [s.landmark_ids for s in known], vp.sensor_offset,
-                                          everything[3], landmarks_of(everything[0], everything[2]))
+    batch = batch_optimum(known, [s.landmark_ids for s in known], vp.sensor_offset,
+                          everything[3], landmarks_of(everything[0], everything[2]))
     report = {"seed": args.seed, "steps": len(steps),
               "same_associations": same_associations(known, known_config, everything, batch, args.bin),
               "one_join": one_join(known, known_config, vp.sensor_offset, args.split, everything, batch)}

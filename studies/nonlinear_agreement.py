@@ -9,7 +9,7 @@ For every landmark:
 A difference that is large in both filters' metrics while D&C's NEES is chi-square(2) and the
 EKF's is not says the EKF is the one that is off.
 
-Usage: python tools/nonlinear_agreement.py [--runs 5] [--steps 400] [--trajectory straight]
+Usage: python studies/nonlinear_agreement.py [--runs 5] [--steps 400] [--trajectory straight]
 """
 
 from __future__ import annotations

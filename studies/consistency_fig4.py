@@ -13,7 +13,7 @@ The "ideal" 2-sigma bounds (the paper's "theoretical (without noise)" ones) come
 same filters fed the noise-free odometry and measurements with the same Q and R, so their
 Jacobians are evaluated at the true state.
 
-    .venv/bin/python tools/consistency_fig4.py --runs 20 --steps 400 --every 5
+    .venv/bin/python studies/consistency_fig4.py --runs 20 --steps 400 --every 5
 
 Writes the figure (``--png``), the mean curves as CSV (``--csv``) and a JSON summary
 (``--json``), and prints the summary.

@@ -24,7 +24,7 @@ k+w when the pairing is unambiguous (nearest < 1 m, second nearest > 3 m). Then:
    as D&C's larger joins do (pairs count as unambiguous within sqrt(size / 30) m, with the
    next candidate beyond three times that).
 
-Usage: python tools/vp_noise_study.py [--steering recalibrated|raw] [--scale 1.0]
+Usage: python studies/vp_noise_study.py [--steering recalibrated|raw] [--scale 1.0]
        [--sigma-range R] [--sigma-bearing B] [--floor-xy F] [--floor-phi F]
        [--map-sizes 30,60,120,240]
 """

@@ -9,13 +9,13 @@ One column per trajectory:
 
 Either run the bench (it writes one JSON per trajectory and join mode into ``--out-dir``)::
 
-    .venv/bin/python tools/timing_figures.py --bench build/dev/benchmarks/dcslam_bench --steps 800
+    .venv/bin/python studies/timing_figures.py --bench build/dev/benchmarks/dcslam_bench --steps 800
 
 or plot JSON files written before by ``dcslam_bench sim ... --json FILE`` (the trajectory and
 join mode are read from each file's ``args``; the EKF curve is taken from any file of the
 trajectory, since the EKF does not depend on the join mode)::
 
-    .venv/bin/python tools/timing_figures.py --json results/timing/*.json
+    .venv/bin/python studies/timing_figures.py --json results/timing/*.json
 
 ``--fit FILE`` prints, for a ``dcslam_bench scaling --json FILE`` output, the exponent of the
 least-squares fit of log(total time) against log(final map size), per filter (the paper:

@@ -19,7 +19,7 @@ assignment without the pairing minus the best) to trace precision against recall
 
 Needs scipy (the "test" extra).
 
-Usage: python tools/association_breakdown.py breakdown|oracle TRAJECTORY [--steps 600]
+Usage: python studies/association_breakdown.py breakdown|oracle TRAJECTORY [--steps 600]
        [--clutter 0.1] [--seed 0] [--gate 0.99] [--unexplained-density 0]
 """
 

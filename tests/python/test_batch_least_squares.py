@@ -1,7 +1,6 @@
-"""tools/vp_batch_reference.py: residual Jacobians, Gauss-Newton on small synthetic problems
-with a known answer, the association helpers, and a short Victoria Park smoke run."""
+"""The batch least-squares oracle: residual Jacobians, the filters' model, and Gauss-Newton on
+small synthetic problems with a known answer."""
 
-import json
 import types
 
 import numpy as np
@@ -9,14 +8,9 @@ import pytest
 
 from dcslam import geometry
 
-from script_loader import load_script
+from oracles import batch_least_squares as oracle
 
 OFFSET = (3.78, 0.5, 0.0)
-
-
-@pytest.fixture(scope="module")
-def tool():
-    return load_script("tools/vp_batch_reference.py")
 
 
 def synthetic(steps=60, landmarks=12, noise=True, seed=1, fixed_first=True):
@@ -60,31 +54,31 @@ def dead_reckoning(steps):
     return np.array(poses)
 
 
-def test_residual_jacobians_match_central_differences(tool):
-    assert tool.check_jacobians(OFFSET, trials=30, seed=3) < 1e-6
+def test_residual_jacobians_match_central_differences():
+    assert oracle.check_jacobians(OFFSET, trials=30, seed=3) < 1e-6
 
 
-def test_residuals_follow_the_filters_model(tool):
+def test_residuals_follow_the_filters_model():
     previous, u = np.array([1.0, -2.0, 0.4]), np.array([0.8, 0.1, -0.05])
     current = np.asarray(geometry.compose(previous, u))
-    np.testing.assert_allclose(tool.odometry_residual(previous, current, u), 0.0, atol=1e-12)
+    np.testing.assert_allclose(oracle.odometry_residual(previous, current, u), 0.0, atol=1e-12)
     # The angle of the odometry residual is wrapped: a full turn is no error.
     turned = current + np.array([0.0, 0.0, 2 * np.pi])
-    np.testing.assert_allclose(tool.odometry_residual(previous, turned, u), 0.0, atol=1e-9)
+    np.testing.assert_allclose(oracle.odometry_residual(previous, turned, u), 0.0, atol=1e-9)
     robot, landmark = np.array([2.0, 1.0, 3.0]), np.array([-10.0, 3.0])
     z = np.asarray(geometry.observe("range_bearing", OFFSET, robot, landmark))
-    np.testing.assert_allclose(tool.observation_residual(OFFSET, robot, landmark, z), 0.0, atol=1e-12)
+    np.testing.assert_allclose(oracle.observation_residual(OFFSET, robot, landmark, z), 0.0, atol=1e-12)
 
 
-def test_sparse_jacobian_matches_finite_differences_of_all_residuals(tool):
+def test_sparse_jacobian_matches_finite_differences_of_all_residuals():
     steps, ids, poses, truth = synthetic(steps=25, landmarks=6, seed=4)
-    problem = tool.build_problem(steps, ids, OFFSET, list(truth))
+    problem = oracle.build_problem(steps, ids, OFFSET, list(truth))
     assert problem.pose_column[0] == -1 and problem.pose_column[1] == -1  # Q = 0 first step: fixed
     rng = np.random.default_rng(0)
     start = {i: p + rng.normal(0, 0.5, 2) for i, p in truth.items()}
-    state = tool.initial_state(problem, poses + rng.normal(0, 0.1, poses.shape), start)
-    residuals, J = tool.linearize(problem, state)
-    np.testing.assert_allclose(tool.linearize(problem, state, jacobian=False), residuals)
+    state = oracle.initial_state(problem, poses + rng.normal(0, 0.1, poses.shape), start)
+    residuals, J = oracle.linearize(problem, state)
+    np.testing.assert_allclose(oracle.linearize(problem, state, jacobian=False), residuals)
     assert J.shape == (problem.residual_count, problem.dimension)
     numeric = np.empty(J.shape)
     eps = 1e-6
@@ -92,17 +86,17 @@ def test_sparse_jacobian_matches_finite_differences_of_all_residuals(tool):
         plus, minus = state.copy(), state.copy()
         plus[column] += eps
         minus[column] -= eps
-        numeric[:, column] = (tool.linearize(problem, plus, jacobian=False)
-                              - tool.linearize(problem, minus, jacobian=False)) / (2 * eps)
+        numeric[:, column] = (oracle.linearize(problem, plus, jacobian=False)
+                              - oracle.linearize(problem, minus, jacobian=False)) / (2 * eps)
     np.testing.assert_allclose(J.toarray(), numeric, atol=1e-5)
 
 
-def test_noise_free_problem_recovers_the_truth(tool):
+def test_noise_free_problem_recovers_the_truth():
     steps, ids, poses, truth = synthetic(noise=False, seed=2)
     rng = np.random.default_rng(5)
     start_poses = poses + rng.normal(0, [0.5, 0.5, 0.05], poses.shape)
     start_landmarks = {i: p + rng.normal(0, 1.0, 2) for i, p in truth.items()}
-    result = tool.batch_optimum(steps, ids, OFFSET, start_poses, start_landmarks, tolerance=1e-9)
+    result = oracle.batch_optimum(steps, ids, OFFSET, start_poses, start_landmarks, tolerance=1e-9)
     assert result.converged
     assert result.chi2 < 1e-12 < result.chi2_initial
     np.testing.assert_allclose(result.poses, poses, atol=1e-7)
@@ -110,28 +104,28 @@ def test_noise_free_problem_recovers_the_truth(tool):
         np.testing.assert_allclose(result.landmarks[i], p, atol=1e-7)
 
 
-def test_gauss_newton_reaches_a_stationary_point_of_a_noisy_problem(tool):
+def test_gauss_newton_reaches_a_stationary_point_of_a_noisy_problem():
     steps, ids, poses, truth = synthetic(steps=80, landmarks=15, seed=7)
     start_poses = dead_reckoning(steps)
     start_landmarks = {i: p + np.array([0.8, -0.6]) for i, p in truth.items()}
-    result = tool.batch_optimum(steps, ids, OFFSET, start_poses, start_landmarks, tolerance=1e-10)
+    result = oracle.batch_optimum(steps, ids, OFFSET, start_poses, start_landmarks, tolerance=1e-10)
     assert result.converged and result.iterations < 20
     assert result.chi2 < result.chi2_initial
     assert all(later <= earlier * (1 + 1e-12) for earlier, later in zip(result.history, result.history[1:]))
     # Independent oracle: the gradient J'r of the cost, rebuilt at the returned answer, vanishes,
     # and no small move along random directions lowers the cost.
-    problem = tool.build_problem(steps, ids, OFFSET, list(truth))
-    state = tool.initial_state(problem, result.poses, result.landmarks)
-    residuals, J = tool.linearize(problem, state)
+    problem = oracle.build_problem(steps, ids, OFFSET, list(truth))
+    state = oracle.initial_state(problem, result.poses, result.landmarks)
+    residuals, J = oracle.linearize(problem, state)
     assert residuals @ residuals == pytest.approx(result.chi2, rel=1e-9)
-    start_residuals, start_J = tool.linearize(problem, tool.initial_state(problem, start_poses, start_landmarks))
+    start_residuals, start_J = oracle.linearize(problem, oracle.initial_state(problem, start_poses, start_landmarks))
     gradient, start_gradient = J.T @ residuals, start_J.T @ start_residuals
     assert np.max(np.abs(gradient)) < 1e-9 * np.max(np.abs(start_gradient))
     assert np.max(np.abs(gradient)) == pytest.approx(result.gradient_norm, abs=1e-12)
     rng = np.random.default_rng(0)
     for _ in range(5):
         moved = state + 1e-4 * rng.normal(size=state.shape)
-        moved_residuals = tool.linearize(problem, moved, jacobian=False)
+        moved_residuals = oracle.linearize(problem, moved, jacobian=False)
         assert moved_residuals @ moved_residuals >= result.chi2
     # Correct noise model: chi2 about its degrees of freedom, and the answer near the truth.
     assert result.degrees_of_freedom == problem.residual_count - problem.dimension
@@ -140,41 +134,12 @@ def test_gauss_newton_reaches_a_stationary_point_of_a_noisy_problem(tool):
     assert max(errors) < 0.5
 
 
-def test_measurements_without_a_landmark_are_left_out(tool):
+def test_measurements_without_a_landmark_are_left_out():
     steps, ids, poses, truth = synthetic(steps=30, landmarks=8, seed=3)
     ids = [i.copy() for i in ids]
     ids[5][:] = -1                         # rejected
     ids[6][0] = 999                        # an id not in the map
-    problem = tool.build_problem(steps, ids, OFFSET, list(truth))
+    problem = oracle.build_problem(steps, ids, OFFSET, list(truth))
     assert problem.dropped_measurements == 1
     used = sum(int(np.sum(i >= 0)) for i in ids) - 1
     assert len(problem.observation_pose) == used
-
-
-def test_association_helpers(tool):
-    first = [np.array([1, 1, 2, -1]), np.array([1, 3, 2])]
-    second = [np.array([7, 7, 8, 9]), np.array([7, 8, -1])]
-    pairs = tool.shared_measurement_pairs(first, second)
-    # 1 -> 7 holds all three of each other's measurements; 8 has one of 2's two and one of 3's one
-    # (a majority of 3's, but not of 8's own two): no pair.
-    assert pairs == {1: 7}
-    counts = tool.association_difference(first, second, pairs)
-    assert counts == {"both_same": 3, "both_different": 2, "first_only": 1, "second_only": 1, "neither": 0}
-    consensus = tool.consensus_ids(first, second, pairs)
-    np.testing.assert_array_equal(consensus[0], [1, 1, -1, -1])
-    np.testing.assert_array_equal(consensus[1], [1, -1, -1])
-
-
-def test_victoria_park_prefix_end_to_end(tool, tmp_path, capsys):
-    out = tmp_path / "report.json"
-    report = tool.main(["--max-steps", "200", "--json", str(out)])
-    printed = capsys.readouterr().out
-    assert "1. Each filter's map against the batch optimum" in printed
-    saved = json.loads(out.read_text())
-    assert saved["steps"] == 200
-    for name in ("ekf", "dc"):
-        f = report["filters"][name]
-        assert f["converged"] and f["chi2"] <= f["chi2_initial"]
-        assert f["gradient_max"] < 1e-3
-        assert saved["filters"][name]["batch_landmarks"] == f["batch_landmarks"] > 0
-    assert report["consensus"]["converged"]

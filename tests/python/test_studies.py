@@ -1,0 +1,94 @@
+"""The studies' command lines (studies/), run as a user runs them: short runs on small inputs,
+checking what they print and the JSON they write. Their numbers are not asserted here; the
+solvers behind them are tested as oracles (test_batch_least_squares.py, test_dense_join.py)."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def run_study(script: str, *arguments, check: bool = True) -> subprocess.CompletedProcess:
+    run = subprocess.run([sys.executable, str(ROOT / "studies" / script), *map(str, arguments)],
+                         capture_output=True, text=True, cwd=ROOT, timeout=600)
+    if check:
+        assert run.returncode == 0, run.stdout + run.stderr
+    return run
+
+
+def test_vp_batch_reference_on_a_victoria_park_prefix(tmp_path):
+    out = tmp_path / "report.json"
+    printed = run_study("vp_batch_reference.py", "--max-steps", 200, "--json", out).stdout
+    assert "1. Each filter's map against the batch optimum" in printed
+    saved = json.loads(out.read_text())
+    assert saved["steps"] == 200
+    for name in ("ekf", "dc"):
+        f = saved["filters"][name]
+        assert f["converged"] and f["chi2"] <= f["chi2_initial"]
+        assert f["gradient_max"] < 1e-3
+        assert f["batch_landmarks"] > 0
+    assert saved["consensus"]["converged"]
+
+
+def test_vp_join_linearisation_on_a_victoria_park_prefix(tmp_path):
+    out = tmp_path / "report.json"
+    printed = run_study("vp_join_linearisation.py", "--max-steps", 600, "--split", 300, "--json", out).stdout
+    assert "(A) Same associations" in printed and "(B) One join at step 300" in printed
+    saved = json.loads(out.read_text())
+    assert saved["steps"] == 600 and saved["seed"] == 0
+    same = saved["same_associations"]
+    assert {"landmarks", "batch", "ekf", "dc", "bins", "local_maps", "large_joins"} <= set(same)
+    assert same["batch"]["converged"] and same["ekf"]["count"] == same["dc"]["count"] == same["landmarks"]
+    assert sum(row["dc"]["count"] for row in same["bins"]) == same["landmarks"]
+    join = saved["one_join"]
+    assert {"split", "m1_features", "m2_features", "pairs", "iterations", "converged", "join_vs_batch",
+            "ekf_all_vs_batch", "dc", "costs", "m2_local"} <= set(join)
+    assert join["split"] == 300 and join["converged"]
+    assert {"join", "ekf_all", "join_from_ekf_all"} <= set(join["costs"])
+    assert join["costs"]["join"]["total"] <= join["costs"]["ekf_all"]["total"]
+    assert join["m2_local"]["batch"]["converged"]
+
+
+def bench_run(filter_name, step_seconds, features=10, total_seconds=None):
+    """One run of a hand-made ``dcslam_bench`` JSON output."""
+    return {"steps": len(step_seconds), "filter": filter_name, "features": features,
+            "total_seconds": sum(step_seconds) if total_seconds is None else total_seconds,
+            "step_seconds": step_seconds, "step_features": [features] * len(step_seconds), "joins": []}
+
+
+def test_timing_figures_fits_power_laws(tmp_path):
+    runs = []
+    for n in (100, 200, 400, 800):
+        runs.append(bench_run("ekf", [1e-9 * n**3], features=n))
+        runs.append(bench_run("dc", [1e-7 * n**2], features=n))
+    path = tmp_path / "scaling.json"
+    path.write_text(json.dumps({"command": "scaling", "args": {}, "runs": runs}))
+    printed = run_study("timing_figures.py", "--fit", path).stdout.splitlines()
+    assert printed == ["ekf: total time ~ n^3.00 (n = final map features)",
+                       "dc: total time ~ n^2.00 (n = final map features)"]
+
+
+def test_timing_figures_sorts_sim_files_by_trajectory_and_join_mode(tmp_path):
+    immediate = tmp_path / "a.json"
+    immediate.write_text(json.dumps({"command": "sim", "args": {"trajectory": "loop", "joins": "immediate"},
+                                     "runs": [bench_run("ekf", [0.1, 0.2]),
+                                              bench_run("dc", [0.01, 0.3], total_seconds=0.5)]}))
+    amortized = tmp_path / "b.json"  # no --trajectory/--joins: the bench's defaults, snail and amortized
+    amortized.write_text(json.dumps({"command": "sim", "args": {}, "runs": [bench_run("dc", [0.02, 0.03])]}))
+    figure = tmp_path / "fig.png"
+    printed = run_study("timing_figures.py", "--json", immediate, amortized, "--png", figure).stdout.splitlines()
+    assert printed[0] == ("loop: dc_immediate steps 0.310 s (total with final map 0.500 s), worst step 300.00 ms; "
+                          "ekf steps 0.300 s (total with final map 0.300 s), worst step 200.00 ms")
+    assert printed[1] == "snail: dc_amortized steps 0.050 s (total with final map 0.050 s), worst step 30.00 ms"
+    assert figure.stat().st_size > 0
+
+
+def test_timing_figures_refuses_a_scaling_file_as_sim_input(tmp_path):
+    path = tmp_path / "scaling.json"
+    path.write_text(json.dumps({"command": "scaling", "args": {}, "runs": []}))
+    run = run_study("timing_figures.py", "--json", path, "--png", tmp_path / "fig.png", check=False)
+    assert run.returncode != 0
+    assert "not a 'dcslam_bench sim' output" in run.stderr
+
