@@ -1057,6 +1057,13 @@ std::int64_t MapJoin::fill_next_block() {
         left_.rightCols(3 + k).middleRows(row0, rows) *
         right_first_.middleRows(local_col, width).transpose();
   }
+  if (row0 == col) {
+    // The diagonal square was computed whole, and base + L N' is symmetric only up to
+    // rounding there: its lower triangle, like every other entry below the diagonal, is the
+    // one kept, so that P is exactly symmetric (as the EKF keeps it).
+    auto diagonal = out.block(col, col, width, width);
+    diagonal.triangularView<Eigen::StrictlyUpper>() = diagonal.transpose();
+  }
   next_fill_row_ = row1;
   if (row1 == out_dim) {
     next_out_col_ += width;
