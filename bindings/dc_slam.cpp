@@ -22,6 +22,7 @@ py::dict pairing_dict(const JoinPairingRecord& pairing) {
   record["truth_distance_sq"] = pairing.truth_distance_sq;
   record["truth_candidate"] = std::vector<bool>(pairing.truth_candidate.begin(), pairing.truth_candidate.end());
   record["truth_consistent"] = std::vector<bool>(pairing.truth_consistent.begin(), pairing.truth_consistent.end());
+  record["own_pairs"] = pairing.own_pairs;
   return record;
 }
 

@@ -260,6 +260,9 @@ void JoinAssociator::finish(std::vector<int> feature_of) {
   if (options_.oracle) {
     const std::vector<int> truth = oracle_pairing();
     audit_oracle(truth);
+    for (std::size_t j = 0; j < feature_of.size(); ++j) {
+      if (feature_of[j] != kStar) result_.own_pairs.emplace_back(feature_of[j], static_cast<Index>(j));
+    }
     if (frame_.first().num_features() >= options_.oracle->min_first_features) apply_oracle(truth, feature_of);
   }
   for (std::size_t j = 0; j < feature_of.size(); ++j) {

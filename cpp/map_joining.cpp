@@ -378,6 +378,10 @@ std::int64_t MapJoin::associate_next(std::int64_t budget) {
       pairing_record_.truth_candidate.push_back(entry.candidate ? 1 : 0);
       pairing_record_.truth_consistent.push_back(entry.consistent ? 1 : 0);
     }
+    for (const auto& [i, j] : result.own_pairs) {
+      pairing_record_.own_pairs.emplace_back(m1.ids()[static_cast<std::size_t>(i)],
+                                             m2.ids()[static_cast<std::size_t>(j)]);
+    }
     report_.overlap = result.overlap;
     report_.tries = result.tries;
     associator_.reset();

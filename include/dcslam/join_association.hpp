@@ -39,6 +39,8 @@ struct JoinAssociationResult {
   int overlap = 0;
   int tries = 0;
   std::vector<JoinTruthAudit> truth_audit;  // only with a JoinOracle
+  // With a JoinOracle: the association's own pairs, before the oracle corrected them.
+  std::vector<std::pair<Eigen::Index, Eigen::Index>> own_pairs;
 };
 
 JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options);

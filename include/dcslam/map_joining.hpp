@@ -91,6 +91,7 @@ struct JoinPairingRecord {
   std::vector<double> truth_distance_sq;  // marginal D^2 of each
   std::vector<char> truth_candidate;      // passed the individual (pruning) gate
   std::vector<char> truth_consistent;     // passed the gate given the more certain true pairs
+  std::vector<std::pair<std::int64_t, std::int64_t>> own_pairs;  // the association's, uncorrected
 };
 
 struct JoinReport {

@@ -284,7 +284,9 @@ class DCSlam(SlamFilter):
         ``truth_candidate`` (t,) bool, whether it passed the individual gate that builds the
         candidate lists, and ``truth_consistent`` (t,) bool, whether it passes the decision
         gate given the more certain true pairs (taken in increasing distance): a true pair
-        that is not consistent is one the two maps disagree about. Empty without an oracle."""
+        that is not consistent is one the two maps disagree about; and ``own_pairs`` ((o, 2)
+        int64), the association's own decision before the oracle corrected it (so that a join
+        can be scored in a history the oracle kept right). Empty without an oracle."""
         return [_pairing_record(record) for record in self._core.join_pairings()]
 
     def fold_pairings(self) -> list:
@@ -338,4 +340,5 @@ def _pairing_record(record: dict) -> dict:
         truth_pairs=np.asarray(record["truth_pairs"], dtype=np.int64).reshape(-1, 2),
         truth_distance_sq=np.asarray(record["truth_distance_sq"], dtype=float),
         truth_candidate=np.asarray(record["truth_candidate"], dtype=bool),
-        truth_consistent=np.asarray(record["truth_consistent"], dtype=bool))
+        truth_consistent=np.asarray(record["truth_consistent"], dtype=bool),
+        own_pairs=np.asarray(record["own_pairs"], dtype=np.int64).reshape(-1, 2))

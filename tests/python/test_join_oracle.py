@@ -103,17 +103,22 @@ def test_oracle_limited_to_large_joins_corrects_only_those(scene):
     slam, _ = run(sim, (*oracle, "truth"), min_first_features=threshold)
     events = sorted(slam.stats.joins, key=lambda j: j["index"])
     as_is = slam_as_is.join_pairings()
-    corrected = untouched = 0
+    corrected = untouched = made_wrong = 0
     for event, record, before in zip(events, slam.join_pairings(), as_is):
         pairs = {tuple(p) for p in record["pairs"].tolist()}
+        own = {tuple(p) for p in record["own_pairs"].tolist()}
         if len(record["first_ids"]) >= threshold:
             assert pairs == {tuple(p) for p in record["truth_pairs"].tolist()}
             assert all(label[i] == label[j] >= 0 for i, j in pairs)
             corrected += 1
-        elif event["leaves"] == 2:
-            assert pairs == {tuple(p) for p in before["pairs"].tolist()}
-            untouched += 1
-    assert corrected > 0 and untouched > 0
+            made_wrong += any(label.get(i, -1) != label.get(j, -2) for i, j in own)
+        else:
+            assert own == pairs  # the oracle left these joins' own decision as it was
+            if event["leaves"] == 2:
+                assert pairs == {tuple(p) for p in before["pairs"].tolist()}
+                untouched += 1
+    # own_pairs keeps what the association chose where the oracle corrected it.
+    assert corrected > 0 and untouched > 0 and made_wrong > 0
 
 
 def test_bad_oracle_calls_are_named_errors():
@@ -142,7 +147,8 @@ def test_audit_changes_nothing_and_records_the_true_pairs(scene):
     reasons = collections.Counter()
     for record, plain in zip(slam.join_pairings(), slam_as_is.join_pairings()):
         np.testing.assert_array_equal(record["pairs"], plain["pairs"])
-        assert len(plain["truth_pairs"]) == 0  # no oracle, no audit
+        assert {tuple(p) for p in record["own_pairs"].tolist()} == {tuple(p) for p in plain["pairs"].tolist()}
+        assert len(plain["truth_pairs"]) == len(plain["own_pairs"]) == 0  # no oracle, no audit
         truth = record["truth_pairs"]
         assert len(truth) == shared_landmarks(record, label)
         for i, j in truth.tolist():
