@@ -1,4 +1,5 @@
 #include <pybind11/pybind11.h>
+#include <pybind11/eigen.h>
 #include <pybind11/stl.h>
 
 #include <memory>
@@ -94,6 +95,19 @@ void define_dc_slam(py::module_& m) {
            [](const DCSlam& slam) {
              py::list out;
              for (const JoinPairingRecord& record : slam.fold_pairings()) out.append(pairing_dict(record));
+             return out;
+           })
+      .def("tree_leaves",
+           [](const DCSlam& slam) {
+             py::list out;
+             for (const TreeLeaf& leaf : slam.tree_leaves()) {
+               py::dict record;
+               record["x"] = Eigen::VectorXd(leaf.map->x());
+               record["P"] = Eigen::MatrixXd(leaf.map->P());
+               record["feature_ids"] = leaf.map->ids();
+               record["robot_id"] = leaf.robot_id;
+               out.append(record);
+             }
              return out;
            })
       .def("stack_shape", &DCSlam::stack_shape)

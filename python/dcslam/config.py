@@ -80,6 +80,15 @@ class SlamConfig:
             ``join_feature_sigma**2 * I`` to each feature of a tested pair; the update still
             imposes the pairs exactly. 0 (default): the maps' covariances alone. Victoria
             Park's config sets it from the data (docs/victoria_park.md).
+        tree_relinearisation: D&C: Gauss-Newton passes (>= 0) that :meth:`~dcslam.DCSlam.estimate`
+            makes through the whole tree of joins, redoing every join from the kept local
+            maps with the move into the first map's frame linearised at the previous pass's
+            map, until no mean moves by more than 1e-9 (m or rad). The estimate then is the
+            least-squares optimum of "each local map measures the global map" with its full
+            covariance, instead of each join's linearisation where its own inputs were
+            (docs/divide_and_conquer.md, "Re-linearised joins"). 0 (default): off, and the
+            local maps are not kept. Costs about the run's join work per pass, in
+            ``estimate()`` only: the steps are unchanged.
         seed: every random choice is reproducible from it.
         amortize: D&C spreads each join over the following steps (docs/design.md §5.3).
         threaded_joins: D&C runs joins on a background thread while mapping goes on
@@ -105,6 +114,7 @@ class SlamConfig:
     rjc_p_fail: float = 0.01
     join_iterations: int = 10
     join_feature_sigma: float = 0.0
+    tree_relinearisation: int = 0
     seed: int = 0
     amortize: bool = True
     threaded_joins: bool = False
