@@ -141,3 +141,21 @@ def test_without_the_option_no_local_map_is_kept():
 def test_out_of_range_passes_are_refused_by_name(value):
     with pytest.raises(ValueError, match="tree_relinearisation"):
         dcslam.DCSlam(dcslam.SlamConfig(tree_relinearisation=value))
+
+
+def test_victoria_park_first_2000_scans_reach_the_optimum_of_their_local_maps():
+    vp = dcslam.datasets.victoria_park()
+    config = vp.slam_config(keep_local_map_poses=True, tree_relinearisation=30)
+    plain = dcslam.DCSlam(dataclasses.replace(config, tree_relinearisation=0))
+    relinearised = dcslam.DCSlam(config)
+    for slam in (plain, relinearised):
+        for s in vp.steps[:2000]:
+            slam.predict(s.u, s.Q)
+            slam.update(s.z, s.R)
+    before, after = plain.estimate(), relinearised.estimate()
+    local_maps, start, boundaries = oracle_problem(relinearised, before)
+    optimum = submap_joining.solve(local_maps, start, boundaries, before.robot, tolerance=1e-7)
+    assert optimum.iterations < 30
+    error = max(np.max(np.abs(p - optimum.features[int(i)])) for i, p in zip(after.landmark_ids, after.landmarks))
+    plain_error = max(np.max(np.abs(p - optimum.features[int(i)])) for i, p in zip(before.landmark_ids, before.landmarks))
+    assert error < 1e-6 < 0.1 < plain_error
