@@ -515,7 +515,7 @@ Estimate DCSlam::estimate() const {
     }
     const auto final_id = [&](std::int64_t id) { return follow_aliases(aliases, follow_aliases(merged, id)); };
     RelinearisationReport report;
-    GaussianMap root = tree_.relinearise(spans, *compact_copy(local_->map()), final_id, join_options(0, 0),
+    GaussianMap root = tree_.relinearise(spans, *compact_copy(local_->map()), final_id, *joined, join_options(0, 0),
                                          config_.tree_relinearisation, kRelinearisationTolerance, &report);
     {
       std::lock_guard<std::mutex> lock(mutex_);

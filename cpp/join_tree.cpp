@@ -43,6 +43,9 @@ class GlobalEstimate {
     for (Index k = 0; k < map.num_features(); ++k) features_[map.ids()[static_cast<std::size_t>(k)]] = map.feature(k);
     for (Index q = 0; q < map.num_poses(); ++q) poses_[map.pose_ids()[static_cast<std::size_t>(q)]] = map.pose(q);
   }
+  void set_pose(std::int64_t id, const Vec3& pose) { poses_[id] = pose; }
+  bool has_pose(std::int64_t id) const { return poses_.count(id) != 0; }
+  void set_feature(std::int64_t id, const Vec2& feature) { features_[id] = feature; }
   const Vec3& robot() const { return robot_; }
   const Vec2* feature(std::int64_t id) const {
     const auto found = features_.find(id);
@@ -60,7 +63,8 @@ class GlobalEstimate {
   std::unordered_map<std::int64_t, Vec3> poses_;
 };
 
-// The largest change of a mean between two results of the tree (features and poses by id).
+// The largest change of a mean between two results of the tree (features and poses by id,
+// those both hold).
 double largest_change(const GaussianMap& before, const GaussianMap& after) {
   const GlobalEstimate old(before);
   double change = (after.robot().head<2>() - old.robot().head<2>()).cwiseAbs().maxCoeff();
@@ -70,11 +74,45 @@ double largest_change(const GaussianMap& before, const GaussianMap& after) {
     if (previous != nullptr) change = std::max(change, (after.feature(k) - *previous).cwiseAbs().maxCoeff());
   }
   for (Index q = 0; q < after.num_poses(); ++q) {
-    const Vec3 previous = old.pose(after.pose_ids()[static_cast<std::size_t>(q)]);
+    const std::int64_t id = after.pose_ids()[static_cast<std::size_t>(q)];
+    if (!old.has_pose(id)) continue;  // the tree's own map keeps no boundary unless asked to
+    const Vec3 previous = old.pose(id);
     change = std::max(change, (after.pose(q).head<2>() - previous.head<2>()).cwiseAbs().maxCoeff());
     change = std::max(change, std::abs(wrap_angle(after.pose(q).z() - previous.z())));
   }
   return change;
+}
+
+// The base pose, in the global frame, that puts the features of `local` (in its own base frame)
+// nearest to where `global` has them: the 2D rigid least-squares fit. False with fewer than
+// two of them in `global`.
+bool fit_base(const GaussianMap& local, const GlobalEstimate& global, Vec3& base) {
+  std::vector<std::pair<Vec2, Vec2>> matches;  // (local, global)
+  for (Index k = 0; k < local.num_features(); ++k) {
+    const Vec2* position = global.feature(local.ids()[static_cast<std::size_t>(k)]);
+    if (position != nullptr) matches.emplace_back(local.feature(k), *position);
+  }
+  if (matches.size() < 2) return false;
+  Vec2 local_mean = Vec2::Zero(), global_mean = Vec2::Zero();
+  for (const auto& [p, q] : matches) {
+    local_mean += p;
+    global_mean += q;
+  }
+  local_mean /= static_cast<double>(matches.size());
+  global_mean /= static_cast<double>(matches.size());
+  double dot = 0.0, cross = 0.0;
+  for (const auto& [p, q] : matches) {
+    const Vec2 a = p - local_mean, b = q - global_mean;
+    dot += a.dot(b);
+    cross += a.x() * b.y() - a.y() * b.x();
+  }
+  const double heading = std::atan2(cross, dot);
+  const double c = std::cos(heading), s = std::sin(heading);
+  Mat2 rotation;
+  rotation << c, -s, s, c;
+  base.head<2>() = global_mean - rotation * local_mean;
+  base.z() = heading;
+  return true;
 }
 
 struct BuiltNode {
@@ -181,8 +219,9 @@ class TreePass {
 
 GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const GaussianMap& current,
                                   const std::function<std::int64_t(std::int64_t)>& final_id,
-                                  const JoinOptions& options, int max_passes, double tolerance,
-                                  RelinearisationReport* report) const {
+                                  const GaussianMap& start, const JoinOptions& options, int max_passes,
+                                  double tolerance, RelinearisationReport* report) const {
+  if (max_passes < 1) throw std::logic_error("JoinTree::relinearise: max_passes must be >= 1");
   const auto relabel = [&](std::int64_t id) {
     const std::int64_t resolved = final_id(id);
     return resolved < 0 ? id : resolved;
@@ -201,15 +240,41 @@ GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const Gaus
   }
   const std::shared_ptr<const GaussianMap> open_map = relabelled(current);
 
-  GaussianMap result = TreePass(*this, leaves, open_map, options, nullptr).fold(stack);
+  // The first point: the map as the tree made it, with each local-map boundary it does not
+  // hold fitted to it (or, for a local map with fewer than two mapped features, the previous
+  // boundary moved by the previous local map's robot).
+  GlobalEstimate point(start);
+  Vec3 boundary = Vec3::Zero();
+  for (std::int64_t k = 1; k <= num_leaves(); ++k) {
+    const std::int64_t id = leaf(k - 1).robot_id;
+    if (!point.has_pose(id)) {
+      const GaussianMap& next_map = k < num_leaves() ? *leaves[static_cast<std::size_t>(k)].map : *open_map;
+      Vec3 fitted;
+      point.set_pose(id, fit_base(next_map, point, fitted)
+                             ? fitted
+                             : compose(boundary, leaves[static_cast<std::size_t>(k - 1)].map->robot()));
+    }
+    boundary = point.pose(id);
+  }
+  // Features the map no longer holds (tentative ones dropped at a join) where their local map puts them.
+  for (std::int64_t k = 0; k <= num_leaves(); ++k) {
+    const GaussianMap& map = k < num_leaves() ? *leaves[static_cast<std::size_t>(k)].map : *open_map;
+    const Vec3 base = k == 0 ? Vec3::Zero() : point.pose(leaf(k - 1).robot_id);
+    for (Index j = 0; j < map.num_features(); ++j) {
+      const std::int64_t id = map.ids()[static_cast<std::size_t>(j)];
+      if (point.feature(id) == nullptr) point.set_feature(id, transform_point(base, map.feature(j)));
+    }
+  }
+
   RelinearisationReport done;
+  GaussianMap result;
   for (int pass = 0; pass < max_passes; ++pass) {
-    const GlobalEstimate point(result);
     GaussianMap next = TreePass(*this, leaves, open_map, options, &point).fold(stack);
-    done.last_step = largest_change(result, next);
+    done.last_step = largest_change(pass == 0 ? start : result, next);
     ++done.passes;
     result = std::move(next);
-    if (done.last_step <= tolerance) break;
+    if (done.last_step <= tolerance || pass + 1 == max_passes) break;
+    point = GlobalEstimate(result);
   }
   if (report != nullptr) *report = done;
   return result;

@@ -40,7 +40,7 @@ struct TreeSpan {
 };
 
 struct RelinearisationReport {
-  int passes = 0;          // Gauss–Newton passes after the first (plain) one
+  int passes = 0;          // Gauss–Newton passes through the tree
   double last_step = 0.0;  // largest change of a mean in the last pass (m or rad)
 };
 
@@ -56,9 +56,10 @@ class JoinTree {
 
   // The map that DCSlam::estimate() folds from the nodes `stack` (bottom first, covering the
   // leaves in order) and `current` (the open local map, based at the last leaf's robot), with
-  // every join redone: first as the tree did it (linearised where each join's inputs are),
-  // then re-linearised at the previous pass's result until no mean moves by more than
-  // `tolerance` (m or rad) or `max_passes` re-linearised passes are done.
+  // every join redone, re-linearised at the previous pass's result, until no mean moves by
+  // more than `tolerance` (m or rad) or `max_passes` (>= 1) passes are done. The first pass
+  // linearises at `start`, the map as the tree made it (ids as `final_id` gives them), with
+  // each local-map boundary placed where its local map's features fit `start` best.
   //
   // The joins pair features by `final_id` (each leaf feature's id once every merge of the run
   // is followed: the joins', the fold's and the duplicate merge's; ids it maps to -1, dropped
@@ -68,8 +69,8 @@ class JoinTree {
   // every local-map boundary as a past pose (the linearisation points need them).
   GaussianMap relinearise(const std::vector<TreeSpan>& stack, const GaussianMap& current,
                           const std::function<std::int64_t(std::int64_t)>& final_id,
-                          const JoinOptions& options, int max_passes, double tolerance,
-                          RelinearisationReport* report = nullptr) const;
+                          const GaussianMap& start, const JoinOptions& options, int max_passes,
+                          double tolerance, RelinearisationReport* report = nullptr) const;
 
  private:
   std::vector<TreeLeaf> leaves_;
