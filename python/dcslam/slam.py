@@ -8,14 +8,16 @@ it from one thread at a time.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Dict, Iterable, List, Optional
+from collections.abc import Sequence
+from typing import Any, Dict, List, Optional, Union, overload
 
 import numpy as np
 
 from . import _core
 from .config import SlamConfig
+from .packed import PackedSteps
 
-__all__ = ["Estimate", "SlamStats", "DCSlamStats", "SlamFilter", "EkfSlam", "DCSlam"]
+__all__ = ["Estimate", "SlamStats", "DCSlamStats", "BatchResult", "SlamFilter", "EkfSlam", "DCSlam"]
 
 
 def _no_past_poses() -> np.ndarray:
@@ -98,6 +100,46 @@ class SlamStats:
         return float(self.step_seconds.sum())
 
 
+@dataclasses.dataclass(frozen=True)
+class BatchResult(Sequence):
+    """What :meth:`SlamFilter.run_batch` returns; also the sequence of each step's ids
+    (``len(result)`` steps, ``result[k]`` a view of ``ids``), as a loop of ``update`` calls
+    would have collected them.
+
+    Attributes:
+        ids: (M,) int64, the feature id each measurement went to, as :meth:`SlamFilter.update`
+            returns them (a new id when it started a feature, -1 when rejected).
+        offsets: (N + 1,) int64; step k's measurements are ``ids[offsets[k]:offsets[k + 1]]``.
+        trajectory: (N + 1, 3) the online pose (x, y in m, phi in rad) as :meth:`SlamFilter.pose`
+            gives it: before the first step, then after each step.
+        step_seconds: (N,) wall time of each step's predict and update, in seconds.
+    """
+
+    ids: np.ndarray
+    offsets: np.ndarray
+    trajectory: np.ndarray
+    step_seconds: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.step_seconds)
+
+    @overload
+    def __getitem__(self, index: int) -> np.ndarray: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> List[np.ndarray]: ...
+
+    def __getitem__(self, index: Union[int, slice]):
+        if isinstance(index, slice):
+            return [self[k] for k in range(*index.indices(len(self)))]
+        k = int(index)
+        if k < 0:
+            k += len(self)
+        if not 0 <= k < len(self):
+            raise IndexError(f"step {index} out of range for {len(self)} steps")
+        return self.ids[self.offsets[k]:self.offsets[k + 1]]
+
+
 class SlamFilter:
     """The interface of :class:`EkfSlam` and :class:`~dcslam.DCSlam` (docs/api.md).
 
@@ -168,18 +210,64 @@ class SlamFilter:
         """Per-step timings and counts; see :class:`SlamStats`."""
         return SlamStats(**self._core.stats)
 
-    def run(self, steps: Iterable[Any], ids_field: Optional[str] = "landmark_ids") -> List[np.ndarray]:
-        """Runs ``predict(s.u, s.Q)`` then ``update(s.z, s.R, ids)`` for every step in one C++ call.
+    def run_batch(self, u, Q, z, R, offsets, landmark_ids=None) -> BatchResult:
+        """Runs ``predict(u[k], Q[k])`` then ``update`` with step k's measurements for every step,
+        in one call into C++ with the GIL released: bitwise what the loop of step calls gives.
 
-        ``ids`` is ``getattr(s, ids_field)`` in ``"known"`` association mode (e.g.
-        ``ids_field="true_ids"`` for simulator steps) and None otherwise; each step's values
-        are converted as :meth:`predict` and :meth:`update` convert theirs, so ``run`` refuses
-        what they refuse. Returns the ids of every update. An invalid step raises
-        ``ValueError`` naming it; earlier steps stay applied.
+        Args:
+            u: (N, 3) relative motions x_{R(k-1) R(k)}: x, y [m], phi [rad].
+            Q: (N, 3, 3) their covariances, or one (3, 3) for every step; symmetric positive
+                semi-definite.
+            z: (M, 2) every step's measurements in step order: (r [m], beta [rad]) or (x, y) [m]
+                in the sensor frame, per ``SlamConfig.observation``.
+            R: (M, 2, 2) their covariances, or one (2, 2) for every measurement; symmetric
+                positive definite.
+            offsets: (N + 1,) integers; step k owns rows ``offsets[k]:offsets[k + 1]`` of z, R
+                and landmark_ids (``offsets[0] == 0``, non-decreasing, ``offsets[N] == M``).
+            landmark_ids: (M,) integers, required in ``"known"`` association mode and refused in
+                the others; -1 marks a measurement that is not a landmark.
+
+        Arrays that are float64 (ids and offsets int64) and C-contiguous are read in place;
+        others are converted once.
+
+        Returns:
+            :class:`BatchResult`: every measurement's id, the online trajectory (N + 1, 3) and
+            each step's wall time.
+
+        Raises:
+            ValueError (:class:`dcslam.InvalidArgument` for values): a bad shape or dtype,
+            naming the array; a value that ``predict`` or ``update`` would refuse, naming the
+            step and its index in the arrays (``"run_batch: step 12 (u[12], Q[12]): predict:
+            argument 'Q' is not positive semi-definite ..."``). Every step is checked before
+            the first one runs, so a refused batch leaves the filter unchanged. A D&C join
+            that fails during the run raises as :meth:`update` would (the steps before stay
+            applied).
+        """
+        ids, trajectory, step_seconds = self._core.run_batch(u, Q, z, R, offsets, landmark_ids)
+        return BatchResult(ids=ids, offsets=np.asarray(offsets, dtype=np.int64), trajectory=trajectory,
+                           step_seconds=step_seconds)
+
+    def run(self, source: Any, ids_field: Optional[str] = "landmark_ids") -> BatchResult:
+        """Runs every step of ``source`` with :meth:`run_batch`.
+
+        ``source`` is a dataset (:class:`~dcslam.datasets.VictoriaPark`,
+        :class:`~dcslam.datasets.Isam2d`), a :class:`~dcslam.Simulation`, their ``steps``, or
+        a :class:`~dcslam.packed.PackedSteps`: their arrays are used in place, with their
+        landmark ids (a simulation's ``true_ids``) in ``"known"`` association mode. Any other
+        iterable of step objects (``s.u, s.Q, s.z, s.R``, and ``getattr(s, ids_field)`` in
+        ``"known"`` mode) is packed first, each value converted as :meth:`predict` and
+        :meth:`update` convert theirs (a bad one raises ``ValueError`` naming the step).
+        ``ids_field=None`` passes no ids.
         """
         use_ids = self._config.association == "known" and ids_field is not None
-        packed = [(s.u, s.Q, s.z, s.R, getattr(s, ids_field) if use_ids else None) for s in steps]
-        return self._core.run(packed)
+        if not isinstance(source, PackedSteps) and hasattr(source, "packed_steps"):
+            source = source.packed_steps()
+        if isinstance(source, PackedSteps):
+            return self.run_batch(source.u, source.Q, source.z, source.R, source.offsets,
+                                  source.landmark_ids if use_ids else None)
+        packed = _core.pack_steps(
+            ((s.u, s.Q, s.z, s.R, getattr(s, ids_field) if use_ids else None) for s in source), use_ids)
+        return self.run_batch(*packed)
 
 
 class EkfSlam(SlamFilter):
