@@ -155,7 +155,9 @@ class SlamFilter:
         return self._config
 
     def predict(self, u, Q) -> None:
-        """Moves the robot by ``u`` (3,), the relative motion x_{R(k-1)R(k)}, with covariance Q.
+        """Moves the robot by ``u`` (3,), the relative motion x_{R(k-1)R(k)} (x, y [m], phi
+        [rad]), with covariance Q (3, 3) [m^2, rad^2]. Raises ``ValueError`` naming the argument
+        for a bad shape or value, and leaves the filter unchanged.
 
         ``x_R <- x_R ⊕ u``, ``P_RR <- F P_RR F' + G Q G'``, ``P_RM <- F P_RM`` (docs/design.md §3.1).
         Q (3, 3) must be symmetric positive semi-definite; a zero variance (e.g. a known
@@ -167,10 +169,10 @@ class SlamFilter:
         """Processes one scan and returns, per measurement, the id of its feature.
 
         Args:
-            z: (m, 2) measurements, (r, beta) or (x, y) in the sensor frame per
-                ``SlamConfig.observation``; m may be 0 (an empty list is fine).
-            R: (2, 2) noise covariance for all measurements, or (m, 2, 2); symmetric positive
-                definite.
+            z: (m, 2) measurements in the sensor frame per ``SlamConfig.observation``:
+                (r [m], beta [rad]) or (x [m], y [m]); m may be 0 (an empty list is fine).
+            R: (2, 2) noise covariance for all measurements, or (m, 2, 2), in the units of z
+                squared ([m^2], [rad^2], [m rad]); symmetric positive definite.
             landmark_ids: (m,) int64, required in ``"known"`` association mode and refused in
                 the others. -1 marks a measurement that is not a landmark (rejected).
 
@@ -180,8 +182,14 @@ class SlamFilter:
 
         Paired measurements are applied jointly (docs/design.md §3.2: ``S = H P H' + R``,
         ``K = P H' S^-1``, covariance downdate as one symmetric rank-2k update); new
-        features are then initialised from the updated robot (``f = g(x_R, z)``). Invalid
-        input raises ``ValueError`` naming the argument and leaves the filter unchanged.
+        features are then initialised from the updated robot (``f = g(x_R, z)``).
+
+        Raises:
+            ValueError: a bad shape, dtype or value (:class:`dcslam.InvalidArgument`: a
+                non-finite or absurd number, an R that is not symmetric positive definite, ids
+                missing, refused, repeated in one scan or < -1), naming the argument and row;
+                the filter is left unchanged. For :class:`DCSlam`, also when an earlier join
+                failed (the filter cannot go on).
         """
         return self._core.update(z, R, landmark_ids)
 
