@@ -5,6 +5,7 @@
 #include <memory>
 #include <string>
 
+#include "dcslam/checkpoint.hpp"
 #include "dcslam/dc_slam.hpp"
 #include "dcslam/errors.hpp"
 
@@ -51,6 +52,16 @@ py::dict join_event_dict(const JoinEvent& event) {
 void define_dc_slam(py::module_& m) {
   py::class_<DCSlam, SlamFilter>(m, "DCSlam")
       .def(py::init<const SlamConfig&>(), py::arg("config"))
+      .def(py::pickle(
+          [](const DCSlam& filter) {
+            std::string bytes;
+            {
+              py::gil_scoped_release release;
+              bytes = save_checkpoint(filter);
+            }
+            return py::bytes(bytes);
+          },
+          [](const py::bytes& state) { return load_dc_checkpoint(std::string_view(state)); }))
       .def("joins",
            [](const DCSlam& slam) {
              py::list out;

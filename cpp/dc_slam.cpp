@@ -153,7 +153,12 @@ void DCSlam::close_local_map() {
     // Ids of the tentative features the local map removed as expired resolve to -1 from now on.
     std::lock_guard<std::mutex> lock(mutex_);
     for (std::int64_t id : local_->removed_ids()) add_alias(merged_into_, id, -1);
-    for (const auto& [from, to] : local_->merged_ids()) add_alias(merged_into_, from, to);
+    // Each merged id straight to where the local map's chain of merges ends: add_alias() drops
+    // the alias of the id it points to, so copying a chain a -> b -> c link by link would lose
+    // b -> c whenever the hash map gave a -> b last.
+    for (const auto& [from, to] : local_->merged_ids()) {
+      add_alias(merged_into_, from, follow_aliases(local_->merged_ids(), to));
+    }
     for (const char* name : kLocalCounters) closed_maps_counters_[name] += counter(local_->stats().counters, name);
     for (std::int64_t id : local_->map().ids()) leaves_of_[id] = {closed_local_maps_};
   }
@@ -295,6 +300,7 @@ std::int64_t DCSlam::work_on(JoinTask& task, std::int64_t budget) {
                             NodeMap{task.right->map, task.right->tentative}, *task.left,
                             *task.right, task.index);
     }
+    task.budgets.push_back(budget);
     const std::int64_t spent = task.join->advance(budget);
     if (task.join->done()) complete(task);
     return spent;

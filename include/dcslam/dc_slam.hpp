@@ -82,11 +82,12 @@ class DCSlam : public SlamFilter {
   std::vector<JoinPairingRecord> fold_pairings() const;
   // Blocks until every queued join is done (threaded mode) or runs them (other modes).
   void finish_joins();
-  const SlamConfig& config() const { return config_; }
+  const SlamConfig& config() const override { return config_; }
   // The local map being built (base: the robot pose where it started).
   const EkfSlam& local_map() const { return *local_; }
 
  private:
+  friend struct CheckpointAccess;  // checkpoint.cpp saves and restores the state below
   struct JoinTask;
   struct Node {
     int leaves = 1;
@@ -112,6 +113,8 @@ class DCSlam : public SlamFilter {
     std::weak_ptr<Node> result;
     std::unique_ptr<MapJoin> join;
     std::int64_t deadline_step = 0;
+    // The budget of every advance() so far: a checkpoint redoes them on load.
+    std::vector<std::int64_t> budgets;
   };
 
   void close_local_map();

@@ -53,6 +53,8 @@ class JoinTree {
   const TreeLeaf& leaf(std::int64_t k) const { return leaves_[static_cast<std::size_t>(k)]; }
   // Local maps in the left input of the join that made `node`.
   std::int64_t left_leaves(const TreeSpan& node) const;
+  // Every join: (first_leaf, leaves) of the node it made -> local maps in its left input.
+  const std::map<std::pair<std::int64_t, std::int64_t>, std::int64_t>& joins() const { return left_leaves_; }
 
   // The map that DCSlam::estimate() folds from the nodes `stack` (bottom first, covering the
   // leaves in order) and `current` (the open local map, based at the last leaf's robot), with

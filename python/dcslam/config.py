@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Mapping, Tuple
+from typing import Any, Literal, Mapping, Tuple
 
 import numpy as np
 
 from . import _core
 
-__all__ = ["SlamConfig"]
+__all__ = ["SlamConfig", "Observation", "Association", "JoinAssociation"]
+
+# The option strings, for type checkers and editors; SlamConfig.validate() checks them at run time.
+Observation = Literal["range_bearing", "point"]
+Association = Literal["known", "nn", "jcbb"]
+JoinAssociation = Literal["rjc", "jcbb", "known"]
 
 
 def _is_boolean(value: Any) -> bool:
@@ -98,9 +103,9 @@ class SlamConfig:
             ``joint_covariance`` (docs/design.md §4.5). No effect on :class:`~dcslam.EkfSlam`.
     """
 
-    observation: str = "range_bearing"
+    observation: Observation = "range_bearing"
     sensor_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
-    association: str = "jcbb"
+    association: Association = "jcbb"
     gate_confidence: float = 0.99
     unexplained_density: float = 0.0
     jcbb_max_nodes: int = 20000
@@ -108,7 +113,7 @@ class SlamConfig:
     tentative_window: int = 5
     merge_radius: float = 2.0
     local_map_features: int = 30
-    join_association: str = "rjc"
+    join_association: JoinAssociation = "rjc"
     rjc_b: int = 4
     rjc_p_good: float = 0.8
     rjc_p_fail: float = 0.01
