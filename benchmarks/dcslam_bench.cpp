@@ -62,6 +62,7 @@ Options of sim, scaling, vp and isam:
   --join-iterations K  linearisation points per join (1: one-shot)  [10]
   --join-feature-sigma S  SlamConfig.join_feature_sigma [m]   [0; vp: 0.1]
   --keep-local-map-poses 0|1  D&C keeps the robot at every local map's end  [0]
+  --tree-relinearisation N  SlamConfig.tree_relinearisation: passes in estimate()  [0]
   --seed S                                                          [0]
   --json FILE          write per-step times and totals as JSON
 
@@ -319,6 +320,7 @@ void apply_run_options(const Args& args, SlamConfig& config) {
   config.local_map_features = static_cast<int>(number(args, "local-map-features", 30));
   config.join_iterations = static_cast<int>(number(args, "join-iterations", 10));
   config.join_feature_sigma = real_number(args, "join-feature-sigma", config.join_feature_sigma);
+  config.tree_relinearisation = static_cast<int>(number(args, "tree-relinearisation", config.tree_relinearisation));
   const long keep_poses = number(args, "keep-local-map-poses", 0);
   if (keep_poses != 0 && keep_poses != 1) {
     throw InvalidArgument("dcslam_bench: --keep-local-map-poses expects 0 or 1");

@@ -6,6 +6,9 @@
 #include <string>
 #include <unordered_map>
 
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+
 #include "dcslam/geometry.hpp"
 
 namespace dcslam {
@@ -29,6 +32,10 @@ std::int64_t JoinTree::left_leaves(const TreeSpan& node) const {
 
 namespace {
 
+// Gauss–Newton steps of the first point's boundaries (BoundaryFit); they usually stop earlier,
+// when no boundary moves by more than 1e-12.
+constexpr int kBoundarySteps = 10;
+
 // The angle equal to `angle` modulo 2π that is nearest to `reference`: JoinFrame takes the
 // difference between a prior heading and the heading it is linearised at.
 double nearest_turn(double angle, double reference) { return reference + wrap_angle(angle - reference); }
@@ -39,8 +46,10 @@ Vec3 between(const Vec3& from, const Vec3& to) { return compose(invert(from), to
 // The means a pass linearises at (the previous pass's result), by feature and pose id.
 class GlobalEstimate {
  public:
-  explicit GlobalEstimate(const GaussianMap& map) : robot_(map.robot()) {
+  // Without `with_poses`, the map's past poses are left out.
+  explicit GlobalEstimate(const GaussianMap& map, bool with_poses = true) : robot_(map.robot()) {
     for (Index k = 0; k < map.num_features(); ++k) features_[map.ids()[static_cast<std::size_t>(k)]] = map.feature(k);
+    if (!with_poses) return;
     for (Index q = 0; q < map.num_poses(); ++q) poses_[map.pose_ids()[static_cast<std::size_t>(q)]] = map.pose(q);
   }
   void set_pose(std::int64_t id, const Vec3& pose) { poses_[id] = pose; }
@@ -114,6 +123,108 @@ bool fit_base(const GaussianMap& local, const GlobalEstimate& global, Vec3& base
   base.z() = heading;
   return true;
 }
+
+// The local-map boundaries B_1..B_L that best explain the local maps given the map's features
+// and robot held fixed: Gauss–Newton over the boundaries alone. Local map k (the open one
+// last) measures [⊖B_k ⊕ B_{k+1}; ⊖B_k ⊕ F_i] (B_0 the origin; the open map's robot the
+// map's), so the normal equations are block-tridiagonal in the boundaries and each step is
+// O(L) (block Thomas elimination) after O(p^3) per local map for its information matrix. At
+// the optimum of the whole problem this gives the optimum's own boundaries, so a pass
+// linearised there stays there (the linear case stays exact, a two-map tree at its join).
+class BoundaryFit {
+ public:
+  BoundaryFit(const std::vector<const GaussianMap*>& maps, const GlobalEstimate& point) {
+    for (const GaussianMap* map : maps) {
+      // Rows measured: the robot (the open map's too) and the features the map holds; the
+      // others (tentative features dropped later) are marginalised out of the local map.
+      std::vector<Index> rows = {0, 1, 2};
+      std::vector<Vec2> features;
+      for (Index j = 0; j < map->num_features(); ++j) {
+        const Vec2* global = point.feature(map->ids()[static_cast<std::size_t>(j)]);
+        if (global == nullptr) continue;
+        rows.push_back(GaussianMap::feature_offset(j));
+        rows.push_back(GaussianMap::feature_offset(j) + 1);
+        features.push_back(*global);
+      }
+      const auto n = static_cast<Index>(rows.size());
+      Eigen::MatrixXd covariance(n, n);
+      Eigen::VectorXd mean(n);
+      for (Index a = 0; a < n; ++a) {
+        mean(a) = map->x()(rows[static_cast<std::size_t>(a)]);
+        for (Index b = 0; b < n; ++b) covariance(a, b) = map->P()(rows[static_cast<std::size_t>(a)], rows[static_cast<std::size_t>(b)]);
+      }
+      // A zero variance (a known heading, a map just opened) is a constraint: a tiny floor
+      // keeps the information finite and weights it as one.
+      const double floor = 1e-12 * std::max(1.0, covariance.diagonal().cwiseAbs().maxCoeff());
+      covariance.diagonal().array() += floor;
+      information_.push_back(covariance.ldlt().solve(Eigen::MatrixXd::Identity(n, n)));
+      means_.push_back(std::move(mean));
+      features_.push_back(std::move(features));
+    }
+  }
+
+  // Up to `steps` Gauss–Newton steps from `boundaries` (B_1..B_L), the open map's robot fixed.
+  void solve(std::vector<Vec3>& boundaries, const Vec3& robot, int steps) const {
+    const std::size_t L = boundaries.size();
+    for (int step = 0; step < steps; ++step) {
+      std::vector<Mat3> diagonal(L, Mat3::Zero()), upper(L, Mat3::Zero());
+      std::vector<Vec3> gradient(L, Vec3::Zero());
+      for (std::size_t k = 0; k <= L; ++k) {
+        const Vec3 base = k == 0 ? Vec3::Zero() : boundaries[k - 1];
+        const Vec3 end = k == L ? robot : boundaries[k];
+        const Eigen::VectorXd& z = means_[k];
+        const auto n = z.size();
+        Eigen::MatrixXd J = Eigen::MatrixXd::Zero(n, 6);  // d h / d [B_k, B_{k+1}]
+        Eigen::VectorXd error(n);
+        Mat3 J_inverse, J_first, J_second;
+        const Vec3 inverse = invert(base, &J_inverse);
+        const Vec3 between = compose(inverse, end, &J_first, &J_second);
+        error.head<3>() = z.head<3>() - between;
+        error(2) = wrap_angle(error(2));
+        J.block<3, 3>(0, 0) = J_first * J_inverse;
+        J.block<3, 3>(0, 3) = J_second;
+        for (std::size_t i = 0; i < features_[k].size(); ++i) {
+          Mat23 J_base;
+          const Index row = 3 + 2 * static_cast<Index>(i);
+          error.segment<2>(row) = z.segment<2>(row) - inverse_transform_point(base, features_[k][i], &J_base);
+          J.block<2, 3>(row, 0) = J_base;
+        }
+        const Eigen::MatrixXd weighted = information_[k] * J;  // Λ J
+        const Eigen::Matrix<double, 6, 6> normal = J.transpose() * weighted;
+        const Eigen::Matrix<double, 6, 1> rhs = weighted.transpose() * error;
+        if (k > 0) {
+          diagonal[k - 1] += normal.block<3, 3>(0, 0);
+          gradient[k - 1] += rhs.head<3>();
+        }
+        if (k < L) {
+          diagonal[k] += normal.block<3, 3>(3, 3);
+          gradient[k] += rhs.tail<3>();
+          if (k > 0) upper[k - 1] += normal.block<3, 3>(0, 3);
+        }
+      }
+      // Block Thomas: eliminate forwards, substitute backwards.
+      for (std::size_t j = 1; j < L; ++j) {
+        const Mat3 factor = upper[j - 1].transpose() * diagonal[j - 1].inverse();
+        diagonal[j] -= factor * upper[j - 1];
+        gradient[j] -= factor * gradient[j - 1];
+      }
+      std::vector<Vec3> delta(L);
+      double largest = 0.0;
+      for (std::size_t j = L; j-- > 0;) {
+        const Vec3 rhs = j + 1 < L ? Vec3(gradient[j] - upper[j] * delta[j + 1]) : gradient[j];
+        delta[j] = diagonal[j].inverse() * rhs;
+        largest = std::max(largest, delta[j].cwiseAbs().maxCoeff());
+      }
+      for (std::size_t j = 0; j < L; ++j) boundaries[j] += delta[j];
+      if (!(largest > 1e-12)) break;
+    }
+  }
+
+ private:
+  std::vector<Eigen::MatrixXd> information_;
+  std::vector<Eigen::VectorXd> means_;
+  std::vector<std::vector<Vec2>> features_;
+};
 
 struct BuiltNode {
   std::shared_ptr<const GaussianMap> map;
@@ -240,22 +351,35 @@ GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const Gaus
   }
   const std::shared_ptr<const GaussianMap> open_map = relabelled(current);
 
-  // The first point: the map as the tree made it, with each local-map boundary it does not
-  // hold fitted to it (or, for a local map with fewer than two mapped features, the previous
-  // boundary moved by the previous local map's robot).
-  GlobalEstimate point(start);
+  // The first point: the map as the tree made it, with the local-map boundaries that best
+  // explain the local maps given that map (BoundaryFit), started from each local map's rigid
+  // fit to the map (or, with fewer than two mapped features, the previous boundary moved by
+  // the previous local map's robot). Computed also where the map holds the boundaries
+  // (keep_local_map_poses), so that asking for them does not move the map.
+  GlobalEstimate point(start, false);
+  std::vector<const GaussianMap*> maps;
+  for (const BuiltNode& leaf : leaves) maps.push_back(leaf.map.get());
+  maps.push_back(open_map.get());
+  std::vector<std::int64_t> boundary_ids;
+  std::vector<Vec3> boundaries;
   Vec3 boundary = Vec3::Zero();
   for (std::int64_t k = 1; k <= num_leaves(); ++k) {
-    const std::int64_t id = leaf(k - 1).robot_id;
-    if (!point.has_pose(id)) {
-      const GaussianMap& next_map = k < num_leaves() ? *leaves[static_cast<std::size_t>(k)].map : *open_map;
-      Vec3 fitted;
-      point.set_pose(id, fit_base(next_map, point, fitted)
-                             ? fitted
-                             : compose(boundary, leaves[static_cast<std::size_t>(k - 1)].map->robot()));
-    }
-    boundary = point.pose(id);
+    Vec3 fitted;
+    const Vec3 moved = compose(boundary, maps[static_cast<std::size_t>(k - 1)]->robot());
+    boundary = fit_base(*maps[static_cast<std::size_t>(k)], point, fitted) ? fitted : moved;
+    boundaries.push_back(boundary);
+    boundary_ids.push_back(leaf(k - 1).robot_id);
   }
+  BoundaryFit(maps, point).solve(boundaries, start.robot(), kBoundarySteps);
+  // A heading no noise has touched (zero variance in every local map so far: odometry with a
+  // known heading) is known exactly, and the covariance the pass computes depends on it to
+  // first order: it is set exactly rather than fitted (to ~1e-10 rad under the fit's floor).
+  double heading = 0.0;
+  for (std::size_t j = 0; j < boundaries.size() && maps[j]->P()(2, 2) == 0.0; ++j) {
+    heading += maps[j]->robot().z();
+    boundaries[j].z() = nearest_turn(heading, boundaries[j].z());
+  }
+  for (std::size_t j = 0; j < boundaries.size(); ++j) point.set_pose(boundary_ids[j], boundaries[j]);
   // Features the map no longer holds (tentative ones dropped at a join) where their local map puts them.
   for (std::int64_t k = 0; k <= num_leaves(); ++k) {
     const GaussianMap& map = k < num_leaves() ? *leaves[static_cast<std::size_t>(k)].map : *open_map;

@@ -67,7 +67,9 @@ def noise_free_steps(sim) -> List[IdealStep]:
 
 
 def make_filters(local_map_features: int, seed: int, join_iterations: int) -> Dict[str, dcslam.SlamFilter]:
+    # The paper's D&C: its estimate is the tree as it ran (tree_relinearisation=0).
     cfg = dcslam.SlamConfig(
+        tree_relinearisation=0,
         association="known",
         join_association="known",
         local_map_features=local_map_features,

@@ -61,7 +61,8 @@ class JoinTree {
   // every join redone, re-linearised at the previous pass's result, until no mean moves by
   // more than `tolerance` (m or rad) or `max_passes` (>= 1) passes are done. The first pass
   // linearises at `start`, the map as the tree made it (ids as `final_id` gives them), with
-  // each local-map boundary placed where its local map's features fit `start` best.
+  // each local-map boundary placed where its local map's features fit `start` best (whether
+  // `start` holds the boundaries or not).
   //
   // The joins pair features by `final_id` (each leaf feature's id once every merge of the run
   // is followed: the joins', the fold's and the duplicate merge's; ids it maps to -1, dropped

@@ -337,9 +337,13 @@ std::pair<double, double> relative_difference(const Estimate& a, const CloningEk
   Eigen::VectorXd xa(d);
   xa << a.robot, Eigen::Map<const Eigen::VectorXd>(a.landmarks.data(), a.landmarks.size()),
       Eigen::Map<const Eigen::VectorXd>(a.past_poses.data(), a.past_poses.size());
+  // Headings (the robot's, each past pose's) compare modulo 2π: pi and -pi are one heading.
+  const Index poses_begin = 3 + 2 * static_cast<Index>(a.landmark_ids.size());
+  const auto is_heading = [&](Index i) { return i == 2 || (i >= poses_begin && (i - poses_begin) % 3 == 2); };
   double dx = 0, dP = 0;
   for (Index i = 0; i < d; ++i) {
-    dx = std::max(dx, std::abs(xa(i) - oracle.x()(rows[static_cast<std::size_t>(i)])));
+    const double difference = xa(i) - oracle.x()(rows[static_cast<std::size_t>(i)]);
+    dx = std::max(dx, std::abs(is_heading(i) ? wrap_angle(difference) : difference));
     for (Index j = 0; j < d; ++j) {
       dP = std::max(dP, std::abs(a.covariance(i, j) - oracle.P()(rows[static_cast<std::size_t>(i)],
                                                                   rows[static_cast<std::size_t>(j)])));

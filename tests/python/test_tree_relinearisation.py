@@ -128,7 +128,7 @@ def test_the_run_is_unchanged_and_every_join_schedule_gives_the_same_estimate():
 
 
 def test_without_the_option_no_local_map_is_kept():
-    slam = dcslam.DCSlam(dcslam.SlamConfig(local_map_features=5))
+    slam = dcslam.DCSlam(dcslam.SlamConfig(local_map_features=5, tree_relinearisation=0))
     sim = dcslam.simulate("loop", steps=30, seed=0)
     for s in sim.steps:
         slam.predict(s.u, s.Q)
