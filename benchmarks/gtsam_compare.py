@@ -20,6 +20,7 @@ Needs GTSAM: ``pip install dcslam[gtsam]`` (or ``pip install gtsam``).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.metadata
 import json
 import math
@@ -198,7 +199,8 @@ def difference(solution: Dict, reference: Dict) -> Dict:
     )
 
 
-def compare(path: Path, max_steps: Optional[int] = None, marginals: bool = True) -> Dict:
+def compare(path: Path, max_steps: Optional[int] = None, marginals: bool = True,
+            tree_passes: Sequence[int] = ()) -> Dict:
     dataset = read_isam2d(path)
     steps = dataset.steps[:max_steps] if max_steps is not None else dataset.steps[:]
     cfg = dataset.slam_config()
@@ -220,6 +222,12 @@ def compare(path: Path, max_steps: Optional[int] = None, marginals: bool = True)
         "dcslam_dc": (dc["update_seconds"], dc["estimate_seconds"]),
         "dcslam_ekf": (ekf["update_seconds"], ekf["estimate_seconds"]),
     }
+    # D&C with other SlamConfig.tree_relinearisation pass counts (the default's row is dcslam_dc).
+    for passes in tree_passes:
+        name = f"dcslam_dc_tree{passes}"
+        run = run_dcslam(dcslam.DCSlam, steps, dataclasses.replace(cfg, tree_relinearisation=passes))
+        solutions[name] = dcslam_solution(run["estimate"], landmark_ids)
+        timings[name] = (run["update_seconds"], run["estimate_seconds"])
     methods = {}
     for name, solution in solutions.items():
         update_seconds, estimate_seconds = timings[name]
@@ -253,7 +261,8 @@ def table_rows(report: Dict) -> List[List[str]]:
     rows = []
     for name, method in report["methods"].items():
         d = method["vs_batch"]
-        rows.append([METHOD_LABELS[name], f"{method['update_seconds']:.4f}", f"{method['estimate_seconds']:.4f}",
+        label = METHOD_LABELS.get(name, name.replace("dcslam_dc_tree", "dcslam D&C, tree_relinearisation="))
+        rows.append([label, f"{method['update_seconds']:.4f}", f"{method['estimate_seconds']:.4f}",
                      f"{method['total_seconds']:.4f}", f"{d['landmark_rms_m']:.3g}", f"{d['landmark_max_m']:.3g}",
                      f"{d['final_position_m']:.3g}", f"{d['final_heading_rad']:.3g}"])
     return rows
@@ -309,6 +318,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="also write the results to this JSON file")
     parser.add_argument("--no-marginals", action="store_true", help="skip timing GTSAM's landmark marginals")
     parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
+    parser.add_argument("--tree-relinearisation", default="",
+                        help="also run D&C with these SlamConfig.tree_relinearisation counts, e.g. 0,20")
     args = parser.parse_args(argv)
     if not args.file.is_file():
         print(f"gtsam_compare: no such file: {args.file} (pass an iSAM/GTSAM 2D file with --file)",
@@ -320,7 +331,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         return 2
     if args.max_steps is not None and args.max_steps < 1:
         parser.error("--max-steps must be at least 1")
-    report = compare(args.file, args.max_steps, marginals=not args.no_marginals)
+    tree_passes = [int(p) for p in args.tree_relinearisation.split(",") if p]
+    report = compare(args.file, args.max_steps, marginals=not args.no_marginals, tree_passes=tree_passes)
     print_report(report, markdown=args.markdown)
     if args.json is not None:
         args.json.write_text(json.dumps(report, indent=2) + "\n")

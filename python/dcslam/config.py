@@ -92,7 +92,7 @@ class SlamConfig:
             least-squares optimum of "each local map measures the global map" with its full
             covariance, instead of each join's linearisation where its own inputs were
             (docs/divide_and_conquer.md, "Re-linearised joins"). 1 (default): one pass, chosen
-            by measurement (Victoria Park: 1.28 m -> 0.22 m RMS from the batch optimum of the
+            by measurement (Victoria Park: 1.28 m -> 0.25 m RMS from the batch optimum of the
             run's own associations, at 1.4x plain D&C's total time; BENCHMARKS.md). 0: the
             paper's D&C, and the local maps are not kept. Costs about the run's join work
             per pass, in ``estimate()`` only: the steps are unchanged.
