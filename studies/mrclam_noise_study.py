@@ -4,7 +4,8 @@
 Everything is measured against the Vicon truth on the filter's own steps (one per time a
 landmark is seen), so the numbers are those the filters see:
 
-1. Odometry scale: least-squares ratio of the true distance (heading change) of each step to
+1. Odometry delay: the shift of the logged turn rate that best explains the true heading
+   over 1 s windows. Odometry scale: least-squares ratio of the true distance (heading change) of each step to
    the logged one (``speed_scale``, ``turn_scale``).
 2. Odometry noise: with the scales applied, the residual ``e = u_true - u`` of every step
    against the covariance the noise model gives it. ``Q`` is linear in ``sigma_speed^2``,
@@ -49,8 +50,27 @@ def load(robot: int, data_dir, **options):
     return dcslam.datasets.mrclam(robot, data_dir if robot not in dcslam.mrclam.BUNDLED_ROBOTS else None, **options)
 
 
-def odometry_scales(robot: int, data_dir) -> dict:
-    raw = load(robot, data_dir, speed_scale=1.0, turn_scale=1.0)
+def odometry_delay(robot: int, data_dir) -> dict:
+    """The delay of the logged speeds that best explains the true heading: the RMS over 1 s
+    windows of (true heading change - logged omega integrated), for delays of 0 to 0.6 s."""
+    raw = dcslam.mrclam.read_robot(data_dir if robot not in dcslam.mrclam.BUNDLED_ROBOTS else
+                                   str(Path(dcslam.__file__).parent / "data" / "mrclam"), robot)
+    truth, odometry = raw["groundtruth"], raw["odometry"]
+    turned = wrap(np.diff(truth[:, 3]))
+    logged = odometry[:-1, 2] * np.diff(odometry[:, 0])
+    window = 50
+    rms = {}
+    for shift in range(0, 31):  # samples of 0.02 s
+        a, b = logged[: len(logged) - shift], turned[shift:]
+        n = (len(a) // window) * window
+        e = b[:n].reshape(-1, window).sum(1) - a[:n].reshape(-1, window).sum(1)
+        rms[round(shift * 0.02, 2)] = float(np.sqrt(np.mean(e**2)))
+    best = min(rms, key=rms.get)
+    return {"odometry_delay": best, "heading_rms_by_delay": rms}
+
+
+def odometry_scales(robot: int, data_dir, delay: float) -> dict:
+    raw = load(robot, data_dir, speed_scale=1.0, turn_scale=1.0, odometry_delay=delay)
     truth = true_motions(raw.poses_true)
     moving = np.abs(raw.u[:, 0]) > 1e-6
     turning = np.abs(raw.u[:, 2]) > 1e-6
@@ -150,19 +170,22 @@ def main(argv=None) -> int:
     parser.add_argument("--json", type=Path, default=Path("results/mrclam_noise_study.json"))
     args = parser.parse_args(argv)
 
-    scales = odometry_scales(FIT_ROBOT, args.data_dir)
+    delay = odometry_delay(FIT_ROBOT, args.data_dir)
+    scales = {"odometry_delay": delay["odometry_delay"],
+              **odometry_scales(FIT_ROBOT, args.data_dir, delay["odometry_delay"])}
     noise = odometry_noise(FIT_ROBOT, args.data_dir, scales)
     fitted = {**scales, **{name: noise[name] for name in NOISE_TERMS}}
-    report = {"fit_robot": FIT_ROBOT, "fitted": fitted, "odometry_fit": noise, "defaults": dcslam.mrclam.MRCLAM_DEFAULTS,
+    report = {"fit_robot": FIT_ROBOT, "fitted": fitted, "odometry_fit": noise, "delay_scan": delay, "defaults": dcslam.mrclam.MRCLAM_DEFAULTS,
               "robots": {}}
     print(f"fitted on robot {FIT_ROBOT}: " + ", ".join(f"{k} {v:.4g}" for k, v in fitted.items()))
     for robot in args.robots:
-        entry = {"scales": odometry_scales(robot, args.data_dir),
+        own_delay = odometry_delay(robot, args.data_dir)["odometry_delay"]
+        entry = {"own_delay": own_delay, "scales": odometry_scales(robot, args.data_dir, own_delay),
                  "odometry_with_defaults": step_nees(robot, args.data_dir, {}),
                  "measurements": measurement_residuals(robot, args.data_dir)}
         report["robots"][robot] = entry
         o, m = entry["odometry_with_defaults"], entry["measurements"]
-        print(f"robot {robot}: own scales v {entry['scales']['speed_scale']:.3f} omega {entry['scales']['turn_scale']:.3f}; "
+        print(f"robot {robot}: own delay {own_delay:.2f} s, own scales v {entry['scales']['speed_scale']:.3f} omega {entry['scales']['turn_scale']:.3f}; "
               f"step NEES with the defaults: mean {o['mean_nees']:.2f}, median {o['median_nees']:.2f}, "
               f"{100 * o['share_below_chi2_95']:.1f} % below chi2(3, .95); dead reckoning ends "
               f"{o['dead_reckoning_final_error_m']:.1f} m off")

@@ -37,11 +37,12 @@ PY="$DCSLAM_ROOT/.venv/bin/python"
 
 # Build requirements go into the venv so the package builds without isolation, which keeps
 # build/dev and makes rebuilds incremental.
-if ! "$PY" -c "import scikit_build_core, pybind11, cmake, ninja, pytest, scipy, typer, rich, matplotlib, hypothesis" 2>/dev/null; then
+if ! "$PY" -c "import scikit_build_core, pybind11, cmake, ninja, pytest, scipy, typer, rich, matplotlib, hypothesis, joblib, distributed, threadpoolctl" 2>/dev/null; then
   echo "setup: installing Python build and test requirements"
   "$PY" -m pip install -q --upgrade pip
   "$PY" -m pip install -q "scikit-build-core>=0.10" "pybind11>=2.12" cmake ninja \
-    numpy "typer>=0.9" "rich>=13" "matplotlib>=3.6" pytest scipy hypothesis
+    numpy "typer>=0.9" "rich>=13" "matplotlib>=3.6" pytest scipy hypothesis \
+    joblib "dask[distributed]" threadpoolctl
 fi
 
 # The development build is tuned for this machine and strict about warnings; the defaults

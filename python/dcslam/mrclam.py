@@ -33,7 +33,7 @@ from . import _core
 from .config import SlamConfig
 from .datasets import Step, _read_only, _Steps
 
-__all__ = ["MrClam", "mrclam", "MRCLAM_DEFAULTS", "ROBOT_COUNT", "BUNDLED_ROBOTS", "robot_files",
+__all__ = ["MrClam", "mrclam", "MRCLAM_DEFAULTS", "LOCAL_MAP_FEATURES", "ROBOT_COUNT", "BUNDLED_ROBOTS", "robot_files",
            "read_table", "read_robot", "clean_heading_glitches", "integrate_odometry"]
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -45,15 +45,21 @@ BUNDLED_ROBOTS = (1,)
 # (studies/mrclam_noise_study.py; the derivation and the checks on robots 2 and 4 are in
 # docs/mrclam.md).
 MRCLAM_DEFAULTS = dict(
-    speed_scale=0.94,            # true forward speed / logged speed
-    turn_scale=0.89,             # true turn rate / logged turn rate
-    sigma_speed=0.0077,          # white noise on the forward speed [m/s/sqrt(Hz)]
-    sigma_turn=0.046,            # white noise on the turn rate [rad/s/sqrt(Hz)]
+    odometry_delay=0.20,         # the robot moves this long [s] after its logged speeds
+    speed_scale=0.953,           # true forward speed / logged speed
+    turn_scale=0.907,            # true turn rate / logged turn rate
+    sigma_speed=0.0076,          # white noise on the forward speed [m/s/sqrt(Hz)]
+    sigma_turn=0.031,             # white noise on the turn rate [rad/s/sqrt(Hz)]
     sigma_lateral=0.0025,        # white noise on the sideways speed (slip) [m/s/sqrt(Hz)]
     range_sigma_fraction=0.04,   # range sigma / range
     sigma_bearing=0.03,          # [rad]
 )
 _POSITIVE_OPTIONS = ("range_sigma_fraction", "sigma_bearing")
+# D&C's local map size here: the room has only 15 landmarks, so the default 30 would never
+# close a local map (D&C would be the EKF); 8 was the best landmark RMS on robot 1 among
+# 4, 6, 8, 10, 12 and 30 (docs/mrclam.md).
+LOCAL_MAP_FEATURES = 8
+_SIGNED_OPTIONS = ("odometry_delay",)
 
 # The columns of each file (whitespace-separated, no header; '#' lines are comments).
 GROUNDTRUTH_FIELDS = ("t", "x", "y", "theta")
@@ -482,10 +488,11 @@ class MrClam:
 
     def slam_config(self, **overrides) -> SlamConfig:
         """A :class:`~dcslam.SlamConfig` for this robot: range–bearing from the robot's centre,
-        known association (the barcodes) inside local maps and at joins. Keyword arguments
+        known association (the barcodes) inside local maps and at joins, D&C local maps of
+        :data:`LOCAL_MAP_FEATURES` features. Keyword arguments
         override fields (e.g. ``association="jcbb", join_association="rjc"`` to hide the ids)."""
         values = dict(observation="range_bearing", sensor_offset=(0.0, 0.0, 0.0), association="known",
-                      join_association="known", local_map_features=30)
+                      join_association="known", local_map_features=LOCAL_MAP_FEATURES)
         values.update(overrides)
         return SlamConfig(**values)
 
@@ -515,7 +522,7 @@ def _check_options(options: dict) -> dict:
     for name, value in values.items():
         if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value)):
             raise _core.InvalidArgument(f"mrclam: option '{name}' must be a finite number, got {value!r}")
-        if value < 0 or (value == 0 and name in _POSITIVE_OPTIONS):
+        if (value < 0 and name not in _SIGNED_OPTIONS) or (value == 0 and name in _POSITIVE_OPTIONS):
             raise _core.InvalidArgument(f"mrclam: option '{name}' must be "
                                         f"{'positive' if name in _POSITIVE_OPTIONS else '>= 0'}, got {value!r}")
     return {name: float(value) for name, value in values.items()}
@@ -530,6 +537,7 @@ def mrclam(robot: int = 1, data_dir: Optional[PathLike] = None, **options) -> Mr
             ``newRobot<N>_Measurement.txt`` (each plain or ``.gz``), ``Barcodes.dat`` and
             ``Landmark_Groundtruth.dat`` (the dataset's resampled 50 Hz files; the landmark file's
             first column is the barcode); ``None`` uses the bundled copy.
+        odometry_delay: the logged (v, omega) act this many seconds after their time stamp.
         speed_scale, turn_scale: calibration of the logged v and omega.
         sigma_speed, sigma_turn, sigma_lateral: white noise on v [m/s/sqrt(Hz)], omega
             [rad/s/sqrt(Hz)] and the sideways speed [m/s/sqrt(Hz)].
@@ -550,10 +558,15 @@ def mrclam(robot: int = 1, data_dir: Optional[PathLike] = None, **options) -> Mr
 
 
 def _build(data: dict, robot: int, options: dict) -> MrClam:
-    groundtruth, odometry, measurement = data["groundtruth"], data["odometry"], data["measurement"]
+    groundtruth, odometry, measurement = data["groundtruth"], data["odometry"].copy(), data["measurement"]
+    odometry[:, 0] += options["odometry_delay"]
     of_robot = np.isin(measurement[:, 1].astype(np.int64), data["robot_barcodes"])
     sightings = measurement[~of_robot]
     t_begin = max(odometry[0, 0], groundtruth[0, 0])
+    early = sightings[:, 0] < t_begin
+    if early.any():
+        raise _core.ParseError(f"{data['paths']['measurement']}: a landmark sighting at t={sightings[early, 0][0]:g} s "
+                               f"comes before the odometry starts (t={t_begin:g} s with odometry_delay)")
 
     times, first = np.unique(sightings[:, 0], return_index=True)
     offsets = np.append(first, len(sightings)).astype(np.int64)

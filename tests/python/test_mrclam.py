@@ -40,7 +40,8 @@ def write_robot(folder, robot=1, gzipped=True, **replace):
 
 
 def load(folder, robot=1, **options):
-    noise = dict(speed_scale=1.0, turn_scale=1.0, sigma_speed=0.0, sigma_turn=0.0, sigma_lateral=0.0)
+    noise = dict(odometry_delay=0.0, speed_scale=1.0, turn_scale=1.0, sigma_speed=0.0, sigma_turn=0.0,
+                 sigma_lateral=0.0)
     return dcslam.datasets.mrclam(robot, folder, **{**noise, **options})
 
 
@@ -120,6 +121,18 @@ def test_a_sighting_between_samples_splits_the_sample(tmp_path):
     data = load(write_robot(tmp_path, Measurement="0.25 18 2.5 0.1\n1 45 2.0 0.0\n"))
     np.testing.assert_allclose(data.u, [[0.25, 0, 0], [0.75, 0, 0]], atol=1e-12)
     np.testing.assert_allclose(data.poses_true[1], [0.25, 0, 0], atol=1e-12)
+
+
+def test_the_odometry_delay_shifts_the_logged_speeds(tmp_path):
+    # With a 0.5 s delay the first second's 1 m/s acts over [0.5, 1.5]: the first step (from
+    # 0.5 s, where the odometry now starts, to the sighting at 1 s) moves 0.5 m; the second
+    # (1 s to 2 s) half a second straight, then half of the quarter turn on the spot.
+    data = load(write_robot(tmp_path, Groundtruth=GROUNDTRUTH.replace("0 2 1", "0.5 2 1", 1)), odometry_delay=0.5)
+    assert data.t_begin == 0.5
+    np.testing.assert_allclose(data.u[0], [0.5, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(data.u[1], [0.5, 0, math.pi / 4], atol=1e-12)
+    with pytest.raises(dcslam.ParseError, match="sighting at t=1 s comes before the odometry starts"):
+        load(write_robot(tmp_path), odometry_delay=2.0)
 
 
 def test_plain_text_files_read_like_gzip(tmp_path):
