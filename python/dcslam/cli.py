@@ -423,6 +423,8 @@ def montecarlo(
     """
     import json
 
+    import numpy as np
+
     from . import experiments
     from .io import _plain
 
@@ -442,8 +444,6 @@ def montecarlo(
     summary = experiments.summary(result)
     try:
         experiments.write_rows(result.rows, output / "runs.csv")
-        import numpy as np
-
         np.savez_compressed(output / "curves.npz", **{
             f"{r.spec.scenario}/{r.spec.filter}/{r.spec.seed}/{name}": values
             for r in result.results for name, values in r.curves.items()})

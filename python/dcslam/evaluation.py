@@ -519,8 +519,11 @@ def map_scores(estimate, landmarks_true, landmark_ids_true, feature_landmark=Non
     errors = np.linalg.norm(aligned - targets, axis=1)
     index = (3 + 2 * scored[:, None] + np.arange(2)).reshape(-1)
     covariance = np.asarray(estimate.covariance, dtype=float)[np.ix_(index, index)]
-    block_rotation = np.kron(np.eye(len(scored)), rotation)
-    value = nees(aligned.reshape(-1), block_rotation @ covariance @ block_rotation.T, targets.reshape(-1))
+    # Every 2x2 block C_ab becomes R C_ab R' (the block-diagonal rotation applied in O(n^2),
+    # not as two dense (2n)^3 products).
+    blocks = covariance.reshape(len(scored), 2, len(scored), 2)
+    rotated = np.einsum("ij,ajbk,lk->aibl", rotation, blocks, rotation, optimize=True).reshape(covariance.shape)
+    value = nees(aligned.reshape(-1), rotated, targets.reshape(-1))
     dof = 2 * len(scored)
     return MapScores(alignment=alignment, landmarks=int(len(scored)), missing=int(missing),
                      rms=float(np.sqrt(np.mean(errors**2))), max_error=float(errors.max()), nees=float(value),
