@@ -480,11 +480,21 @@ class MrClam:
         sigmas = np.sqrt(np.diagonal(self.R, axis1=1, axis2=2))  # R is diagonal here
         z = self.z + extra_noise**0.5 * sigmas * rng.standard_normal(self.z.shape)
         z[:, 1] = _wrap(z[:, 1])
-        arrays = {**self._arrays, "u": u, "Q": (1 + extra_noise) * self.Q, "z": z,
-                  "R": (1 + extra_noise) * self.R}
-        return MrClam({k: (v.copy() if isinstance(v, np.ndarray) and k not in ("u", "z") else v)
-                       for k, v in arrays.items()}, self.robot,
-                      {**self.options, "perturbed_seed": seed, "extra_noise": float(extra_noise)})
+        return self.replaced(u=u, Q=(1 + extra_noise) * self.Q, z=z, R=(1 + extra_noise) * self.R,
+                             perturbed_seed=seed, extra_noise=float(extra_noise))
+
+    def replaced(self, u=None, Q=None, z=None, R=None, **note) -> "MrClam":
+        """A copy with some of the step arrays replaced (same shapes), the steps' times, ids
+        and the truth unchanged; ``note`` is added to ``options`` (what was done)."""
+        arrays = dict(self._arrays)
+        for name, value in (("u", u), ("Q", Q), ("z", z), ("R", R)):
+            if value is not None:
+                value = np.array(value, dtype=float)
+                if value.shape != arrays[name].shape:
+                    raise _core.InvalidArgument(f"MrClam.replaced: '{name}' must have shape "
+                                                f"{arrays[name].shape}, got {value.shape}")
+                arrays[name] = value
+        return MrClam(arrays, self.robot, {**self.options, **note})
 
     def slam_config(self, **overrides) -> SlamConfig:
         """A :class:`~dcslam.SlamConfig` for this robot: range–bearing from the robot's centre,

@@ -277,3 +277,14 @@ def test_a_truncated_gzip_file_is_refused(tmp_path):
 def test_bad_options_are_refused(tmp_path, options, expected):
     with pytest.raises(dcslam.InvalidArgument, match=expected):
         dcslam.datasets.mrclam(1, write_robot(tmp_path), **options)
+
+
+def test_replaced_swaps_step_arrays_and_keeps_the_truth(tmp_path):
+    data = load(write_robot(tmp_path))
+    copy = data.replaced(z=np.ones((4, 2)), note="test")
+    np.testing.assert_array_equal(copy.steps[2].z, [[1, 1], [1, 1]])
+    np.testing.assert_array_equal(copy.u, data.u)
+    np.testing.assert_array_equal(copy.poses_true, data.poses_true)
+    assert copy.options["note"] == "test"
+    with pytest.raises(dcslam.InvalidArgument, match=r"'u' must have shape \(3, 3\), got \(2, 3\)"):
+        data.replaced(u=np.zeros((2, 3)))
