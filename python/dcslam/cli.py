@@ -455,8 +455,9 @@ def montecarlo(
         _fail(f"cannot write the results to --output {output}: {error}")
 
     table = Table(title=f"Monte Carlo: {len(result.results)} runs, {result.backend}, {result.seconds:.1f} s")
-    for column in ("scenario/filter", "runs", "max mean heading CI", "heading CI last quarter",
-                   "pose CI last quarter", "ATE (m)", "landmark RMS (m)", "map CI"):
+    table.add_column("scenario/filter", no_wrap=True)
+    for column in ("runs", "max mean heading CI", "heading CI last quarter", "pose CI last quarter", "ATE (m)",
+                   "landmark RMS (m)", "map CI"):
         table.add_column(column, justify="right")
     for group, values in summary["groups"].items():
         table.add_row(group, str(values["runs"]), f"{values['mean_heading_ci_max']:.2f}",

@@ -110,3 +110,13 @@ def test_the_table_and_the_figure_are_written(tmp_path):
     summary = experiments.summary(result)
     assert set(summary["groups"]) == {"straight/ekf", "straight/dc"}
     assert summary["groups"]["straight/dc"]["runs"] == 2
+
+
+def test_a_running_scheduler_is_used_by_its_address():
+    distributed = pytest.importorskip("dask.distributed")
+    specs = experiments.plan(["straight"], ["dc"], runs=1, **SMALL)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        remote = experiments.run_experiment(specs, scheduler=cluster.scheduler_address)
+    assert remote.backend == "dask" and remote.workers is None
+    assert [comparable(r) for r in remote.results] == [comparable(r) for r in experiments.run_experiment(specs, workers=1).results]
