@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import os
 import time
 from typing import Any, Dict, List, Optional, Sequence
@@ -151,11 +152,17 @@ def _scenario_data(spec: RunSpec):
         cfg = SlamConfig(association="known", join_association="known",
                          local_map_features=spec.local_map_features, seed=spec.seed)
         return sim.steps, cfg, "true_ids", sim.poses, sim.landmarks, np.arange(len(sim.landmarks))
-    from .mrclam import mrclam
-
-    data = mrclam(spec.robot, spec.data_dir).perturbed(spec.seed, spec.extra_noise)
+    data = _mrclam(spec.robot, spec.data_dir).perturbed(spec.seed, spec.extra_noise)
     cfg = data.slam_config(local_map_features=spec.local_map_features, seed=spec.seed)
     return data.steps, cfg, "landmark_ids", data.poses_true, data.landmarks_true, data.landmark_ids_true
+
+
+@functools.lru_cache(maxsize=4)
+def _mrclam(robot: int, data_dir: Optional[str]):
+    """The robot's data, read once per process (its arrays are read-only; runs perturb copies)."""
+    from .mrclam import mrclam
+
+    return mrclam(robot, data_dir)
 
 
 def run_one(spec: RunSpec) -> RunResult:
@@ -243,9 +250,10 @@ def _run_on_dask(specs: List[RunSpec], scheduler: Optional[str], workers: int) -
         with Client(scheduler) as client:
             return client.gather(client.map(run_one, specs, pure=False))
     # One thread per worker process: a run is one C++ call after another, and the GIL would
-    # serialise threads of one process.
+    # serialise threads of one process. The dashboard takes any free port (":0"), so that a
+    # second cluster on the machine does not fight over the default one.
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+                      dashboard_address=":0") as cluster, Client(cluster) as client:
         return client.gather(client.map(run_one, specs, pure=False))
 
 
