@@ -55,11 +55,11 @@ MRCLAM_DEFAULTS = dict(
     sigma_bearing=0.03,          # [rad]
 )
 _POSITIVE_OPTIONS = ("range_sigma_fraction", "sigma_bearing")
+_SIGNED_OPTIONS = ("odometry_delay",)
 # D&C's local map size here: the room has only 15 landmarks, so the default 30 would never
 # close a local map (D&C would be the EKF); 8 was the best landmark RMS on robot 1 among
 # 4, 6, 8, 10, 12 and 30 (docs/mrclam.md).
 LOCAL_MAP_FEATURES = 8
-_SIGNED_OPTIONS = ("odometry_delay",)
 
 # The columns of each file (whitespace-separated, no header; '#' lines are comments).
 GROUNDTRUTH_FIELDS = ("t", "x", "y", "theta")
@@ -73,8 +73,10 @@ LANDMARK_FIELDS = ("barcode", "x", "y", "sd_x", "sd_y")
 HEADING_GLITCH_RAD = 0.1
 HEADING_GLITCH_HALF_WINDOW = 12  # samples on each side (0.24 s at 50 Hz)
 
-# The longest line accepted, as in the C++ text reader: a broken file cannot take more memory.
+# The longest line accepted, as in the C++ text reader, and the most text a file may hold (a
+# robot's largest file is 5 MB): a broken file cannot take more memory than that.
 MAX_LINE_BYTES = 64 * 1024
+MAX_FILE_BYTES = 256 << 20
 _NUMBER = re.compile(rb"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _NUMBER_CHARACTERS = b"0123456789+-.eE "
 
@@ -89,16 +91,22 @@ def _file_bytes(path: str) -> bytes:
     """The whole text of a plain or gzip file (gzip told by its magic bytes, not its name)."""
     try:
         with open(path, "rb") as handle:
-            data = handle.read()
+            gzipped = handle.read(2) == b"\x1f\x8b"
+            handle.seek(0)
+            # Read one byte past the limit to tell a file at the limit from a larger one, without
+            # reading (or inflating) more than that.
+            try:
+                data = (gzip.GzipFile(fileobj=handle) if gzipped else handle).read(MAX_FILE_BYTES + 1)
+            except (EOFError, OSError, zlib.error) as error:
+                if not gzipped:
+                    raise
+                raise _core.ParseError(f"{path}: broken gzip stream ({error})") from None
     except FileNotFoundError:
         raise _core.ParseError(f"{path}: no such file") from None
     except OSError as error:
         raise _core.ParseError(f"{path}: cannot read ({error.strerror or error})") from None
-    if data[:2] == b"\x1f\x8b":
-        try:
-            data = gzip.decompress(data)
-        except (EOFError, OSError, zlib.error) as error:
-            raise _core.ParseError(f"{path}: broken gzip stream ({error})") from None
+    if len(data) > MAX_FILE_BYTES:
+        raise _core.ParseError(f"{path}: more than {MAX_FILE_BYTES} bytes of text")
     return data
 
 

@@ -288,3 +288,10 @@ def test_replaced_swaps_step_arrays_and_keeps_the_truth(tmp_path):
     assert copy.options["note"] == "test"
     with pytest.raises(dcslam.InvalidArgument, match=r"'u' must have shape \(3, 3\), got \(2, 3\)"):
         data.replaced(u=np.zeros((2, 3)))
+
+
+def test_a_file_with_more_text_than_the_limit_is_refused_without_inflating_it(tmp_path, monkeypatch):
+    monkeypatch.setattr(dcslam.mrclam, "MAX_FILE_BYTES", 1000)
+    write_robot(tmp_path, Odometry="0 1 0\n" * 400)
+    with pytest.raises(dcslam.ParseError, match=r"Odometry.txt.gz: more than 1000 bytes of text"):
+        dcslam.datasets.mrclam(1, tmp_path)
