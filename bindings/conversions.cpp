@@ -70,7 +70,7 @@ Eigen::MatrixXd as_matrix(const py::handle& obj, Eigen::Index rows, Eigen::Index
   return Eigen::Map<const RowMajor>(array.data(), array.shape(0), array.shape(1));
 }
 
-std::vector<std::int64_t> as_int64_vector(const py::handle& obj, const std::string& where) {
+Int64Array as_int64_array(const py::handle& obj, const std::string& where) {
   py::array array = obj.is_none() ? py::array() : py::array::ensure(obj);
   if (!array) {
     throw py::value_error(where + ": expected an array of integers, got " +
@@ -79,7 +79,7 @@ std::vector<std::int64_t> as_int64_vector(const py::handle& obj, const std::stri
   if (array.ndim() != 1) {
     throw py::value_error(where + ": expected shape (m,), got " + shape_string(array));
   }
-  if (array.size() == 0) return {};
+  if (array.size() == 0) return Int64Array(0);
   const char kind = array.dtype().kind();
   if (kind != 'i' && kind != 'u') {
     throw py::value_error(where + ": expected integers, got dtype " +
@@ -95,7 +95,11 @@ std::vector<std::int64_t> as_int64_vector(const py::handle& obj, const std::stri
       }
     }
   }
-  const auto values = py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>::ensure(array);
+  return Int64Array::ensure(array);
+}
+
+std::vector<std::int64_t> as_int64_vector(const py::handle& obj, const std::string& where) {
+  const Int64Array values = as_int64_array(obj, where);
   return std::vector<std::int64_t>(values.data(), values.data() + values.size());
 }
 

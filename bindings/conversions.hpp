@@ -15,6 +15,7 @@ namespace dcslam::bindings {
 namespace py = pybind11;
 
 using DoubleArray = py::array_t<double, py::array::c_style | py::array::forcecast>;
+using Int64Array = py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>;
 
 // "(3,)" or "(4, 2)" for messages.
 std::string shape_string(const py::array& array);
@@ -37,5 +38,7 @@ Eigen::MatrixXd as_matrix(const py::handle& obj, Eigen::Index rows, Eigen::Index
 // Floats, strings and booleans are refused rather than converted, unsigned values beyond
 // int64 rather than wrapped.
 std::vector<std::int64_t> as_int64_vector(const py::handle& obj, const std::string& where);
+// The same, as a C-contiguous int64 array: the caller's own when it is one (no copy).
+Int64Array as_int64_array(const py::handle& obj, const std::string& where);
 
 }  // namespace dcslam::bindings

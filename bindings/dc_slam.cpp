@@ -1,9 +1,11 @@
 #include <pybind11/pybind11.h>
+#include <pybind11/eigen.h>
 #include <pybind11/stl.h>
 
 #include <memory>
 #include <string>
 
+#include "dcslam/checkpoint.hpp"
 #include "dcslam/dc_slam.hpp"
 #include "dcslam/errors.hpp"
 
@@ -50,6 +52,16 @@ py::dict join_event_dict(const JoinEvent& event) {
 void define_dc_slam(py::module_& m) {
   py::class_<DCSlam, SlamFilter>(m, "DCSlam")
       .def(py::init<const SlamConfig&>(), py::arg("config"))
+      .def(py::pickle(
+          [](const DCSlam& filter) {
+            std::string bytes;
+            {
+              py::gil_scoped_release release;
+              bytes = save_checkpoint(filter);
+            }
+            return py::bytes(bytes);
+          },
+          [](const py::bytes& state) { return load_dc_checkpoint(std::string_view(state)); }))
       .def("joins",
            [](const DCSlam& slam) {
              py::list out;
@@ -94,6 +106,19 @@ void define_dc_slam(py::module_& m) {
            [](const DCSlam& slam) {
              py::list out;
              for (const JoinPairingRecord& record : slam.fold_pairings()) out.append(pairing_dict(record));
+             return out;
+           })
+      .def("tree_leaves",
+           [](const DCSlam& slam) {
+             py::list out;
+             for (const TreeLeaf& leaf : slam.tree_leaves()) {
+               py::dict record;
+               record["x"] = Eigen::VectorXd(leaf.map->x());
+               record["P"] = Eigen::MatrixXd(leaf.map->P());
+               record["feature_ids"] = leaf.map->ids();
+               record["robot_id"] = leaf.robot_id;
+               out.append(record);
+             }
              return out;
            })
       .def("stack_shape", &DCSlam::stack_shape)

@@ -9,7 +9,9 @@
 #include <pybind11/stl.h>
 
 #include "conversions.hpp"
+#include "dcslam/checkpoint.hpp"
 #include "dcslam/ekf_slam.hpp"
+#include "dcslam/packed_steps.hpp"
 #include "dcslam/slam_filter.hpp"
 
 namespace py = pybind11;
@@ -73,28 +75,121 @@ py::array step_column(const RunStats& stats, Field field) {
   return std::move(column);
 }
 
-SlamStep step_from_python(const py::handle& item, std::size_t index) {
-  const std::string prefix = "run: step " + std::to_string(index);
-  if (!py::isinstance<py::tuple>(item) || py::len(item) != 5) {
-    throw py::value_error(prefix + ": expected a tuple (u, Q, z, R, landmark_ids or None)");
+// The packed arrays of run_batch, checked for shape and dtype (values: check_packed_steps()).
+struct PackedArrays {
+  DoubleArray u, Q, z, R;
+  Int64Array offsets;
+  std::optional<Int64Array> landmark_ids;
+
+  PackedSteps view() const {
+    PackedSteps steps;
+    steps.steps = u.shape(0);
+    steps.measurements = z.shape(0);
+    steps.u = u.data();
+    steps.Q = Q.data();
+    steps.Q_per_step = Q.ndim() == 3;
+    steps.z = z.data();
+    steps.R = R.data();
+    steps.R_per_measurement = R.ndim() == 3;
+    steps.offsets = offsets.data();
+    steps.landmark_ids = landmark_ids ? landmark_ids->data() : nullptr;
+    return steps;
   }
-  const auto fields = py::reinterpret_borrow<py::tuple>(item);
-  SlamStep step;
-  step.u = as_vector(fields[0], 3, prefix + ": argument 'u'");
-  step.Q = as_matrix(fields[1], 3, 3, prefix + ": argument 'Q'");
-  const DoubleArray z = measurements_array(fields[2], prefix + ": argument 'z'");
-  step.z = Eigen::Map<const MeasurementMatrix>(z.data(), z.shape(0), 2);
-  step.R = covariances(fields[3], z.shape(0), prefix + ": argument 'R'");
-  if (!fields[4].is_none()) {
-    step.landmark_ids = as_int64_vector(fields[4], prefix + ": argument 'landmark_ids'");
-    step.has_landmark_ids = true;
+};
+
+PackedArrays packed_arrays(const py::handle& u, const py::handle& Q, const py::handle& z,
+                           const py::handle& R, const py::handle& offsets,
+                           const py::handle& landmark_ids) {
+  const auto where = [](const char* name) { return argument("run_batch", name); };
+  PackedArrays arrays{as_double_array(u, where("u")), as_double_array(Q, where("Q")),
+                      measurements_array(z, where("z")), as_double_array(R, where("R")),
+                      as_int64_array(offsets, where("offsets")), std::nullopt};
+  const py::ssize_t n = arrays.u.ndim() == 2 ? arrays.u.shape(0) : 0;
+  const py::ssize_t m = arrays.z.shape(0);
+  if (arrays.u.ndim() != 2 || arrays.u.shape(1) != 3) {
+    throw py::value_error(where("u") + ": expected shape (N, 3), got " + shape_string(arrays.u));
   }
-  return step;
+  const bool Q_shared = arrays.Q.ndim() == 2 && arrays.Q.shape(0) == 3 && arrays.Q.shape(1) == 3;
+  const bool Q_per_step = arrays.Q.ndim() == 3 && arrays.Q.shape(0) == n && arrays.Q.shape(1) == 3 &&
+                          arrays.Q.shape(2) == 3;
+  if (!Q_shared && !Q_per_step) {
+    throw py::value_error(where("Q") + ": expected shape (3, 3) or (" + std::to_string(n) +
+                          ", 3, 3), got " + shape_string(arrays.Q));
+  }
+  const bool R_shared = arrays.R.ndim() == 2 && arrays.R.shape(0) == 2 && arrays.R.shape(1) == 2;
+  const bool R_per_measurement = arrays.R.ndim() == 3 && arrays.R.shape(0) == m &&
+                                 arrays.R.shape(1) == 2 && arrays.R.shape(2) == 2;
+  if (!R_shared && !R_per_measurement) {
+    throw py::value_error(where("R") + ": expected shape (2, 2) or (" + std::to_string(m) +
+                          ", 2, 2), got " + shape_string(arrays.R));
+  }
+  if (arrays.offsets.shape(0) != n + 1) {
+    throw py::value_error(where("offsets") + ": expected shape (" + std::to_string(n + 1) +
+                          ",) (one more than the steps in u), got " + shape_string(arrays.offsets));
+  }
+  if (!landmark_ids.is_none()) {
+    arrays.landmark_ids = as_int64_array(landmark_ids, where("landmark_ids"));
+    if (arrays.landmark_ids->shape(0) != m) {
+      throw py::value_error(where("landmark_ids") + ": expected shape (" + std::to_string(m) +
+                            ",) (one per row of z), got " + shape_string(*arrays.landmark_ids));
+    }
+  }
+  return arrays;
+}
+
+// Packs step objects' (u, Q, z, R, landmark_ids or None) tuples into run_batch's arrays,
+// converting each value as predict() and update() convert theirs.
+py::tuple pack_steps(const py::iterable& steps, bool with_ids) {
+  std::vector<double> u, Q, z, R;
+  std::vector<std::int64_t> offsets{0}, ids;
+  std::size_t index = 0;
+  for (const py::handle item : steps) {
+    const std::string prefix = "run: step " + std::to_string(index++);
+    if (!py::isinstance<py::tuple>(item) || py::len(item) != 5) {
+      throw py::value_error(prefix + ": expected a tuple (u, Q, z, R, landmark_ids or None)");
+    }
+    const auto fields = py::reinterpret_borrow<py::tuple>(item);
+    const Eigen::VectorXd motion = as_vector(fields[0], 3, prefix + ": argument 'u'");
+    u.insert(u.end(), motion.data(), motion.data() + 3);
+    const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> covariance =
+        as_matrix(fields[1], 3, 3, prefix + ": argument 'Q'");
+    Q.insert(Q.end(), covariance.data(), covariance.data() + 9);
+    const DoubleArray measurements = measurements_array(fields[2], prefix + ": argument 'z'");
+    const py::ssize_t m = measurements.shape(0);
+    z.insert(z.end(), measurements.data(), measurements.data() + 2 * m);
+    const std::vector<Mat2> noise = covariances(fields[3], m, prefix + ": argument 'R'");
+    for (py::ssize_t i = 0; i < m; ++i) {
+      const Eigen::Matrix<double, 2, 2, Eigen::RowMajor> Ri = noise[noise.size() == 1 ? 0 : static_cast<std::size_t>(i)];
+      R.insert(R.end(), Ri.data(), Ri.data() + 4);
+    }
+    offsets.push_back(offsets.back() + m);
+    if (with_ids) {
+      const std::string where = prefix + ": argument 'landmark_ids'";
+      if (fields[4].is_none()) throw py::value_error(where + " is required in association mode 'known'");
+      const std::vector<std::int64_t> step_ids = as_int64_vector(fields[4], where);
+      if (static_cast<py::ssize_t>(step_ids.size()) != m) {
+        throw py::value_error(where + ": expected " + std::to_string(m) + " ids (one per row of z), got " +
+                              std::to_string(step_ids.size()));
+      }
+      ids.insert(ids.end(), step_ids.begin(), step_ids.end());
+    }
+  }
+  const auto n = static_cast<py::ssize_t>(offsets.size() - 1);
+  const auto total = static_cast<py::ssize_t>(offsets.back());
+  const auto array = [](const auto& values, std::vector<py::ssize_t> shape) {
+    using Value = typename std::decay_t<decltype(values)>::value_type;
+    py::array_t<Value> out(shape);
+    std::copy(values.begin(), values.end(), out.mutable_data());
+    return out;
+  };
+  return py::make_tuple(array(u, {n, 3}), array(Q, {n, 3, 3}), array(z, {total, 2}), array(R, {total, 2, 2}),
+                        array(offsets, {n + 1}), with_ids ? py::object(array(ids, {total})) : py::none());
 }
 
 }  // namespace
 
 void define_slam_filter(py::module_& m) {
+  m.def("pack_steps", &pack_steps, py::arg("steps"), py::arg("with_ids"));
   py::class_<SlamFilter>(m, "SlamFilter",
                          "The interface shared by EkfSlam and DCSlam (use dcslam.EkfSlam).")
       .def(
@@ -165,24 +260,37 @@ void define_slam_filter(py::module_& m) {
                                return out;
                              })
       .def(
-          "run",
-          [](SlamFilter& filter, const py::iterable& steps) {
-            std::vector<SlamStep> converted;
-            std::size_t index = 0;
-            for (const py::handle item : steps) converted.push_back(step_from_python(item, index++));
-            std::vector<std::vector<std::int64_t>> assigned;
+          "run_batch",
+          [](SlamFilter& filter, const py::object& u, const py::object& Q, const py::object& z,
+             const py::object& R, const py::object& offsets, const py::object& landmark_ids) {
+            const PackedArrays arrays = packed_arrays(u, Q, z, R, offsets, landmark_ids);
+            const PackedSteps steps = arrays.view();
+            py::array_t<std::int64_t> ids(steps.measurements);
+            py::array_t<double> trajectory(std::vector<py::ssize_t>{steps.steps + 1, 3});
+            py::array_t<double> step_seconds(steps.steps);
+            const PackedOutputs outputs{ids.mutable_data(), trajectory.mutable_data(),
+                                        step_seconds.mutable_data()};
             {
               py::gil_scoped_release release;
-              assigned = run_steps(filter, converted);
+              run_packed_steps(filter, steps, outputs);
             }
-            py::list out;
-            for (auto& ids : assigned) out.append(int64_array(std::move(ids)));
-            return out;
+            return py::make_tuple(ids, trajectory, step_seconds);
           },
-          py::arg("steps"));
+          py::arg("u"), py::arg("Q"), py::arg("z"), py::arg("R"), py::arg("offsets"),
+          py::arg("landmark_ids") = py::none());
 
   py::class_<EkfSlam, SlamFilter>(m, "EkfSlam")
       .def(py::init<const SlamConfig&>(), py::arg("config"))
+      .def(py::pickle(
+          [](const EkfSlam& filter) {
+            std::string bytes;
+            {
+              py::gil_scoped_release release;
+              bytes = save_checkpoint(filter);
+            }
+            return py::bytes(bytes);
+          },
+          [](const py::bytes& state) { return load_ekf_checkpoint(std::string_view(state)); }))
       .def_property("next_fresh_id", &EkfSlam::next_fresh_id, &EkfSlam::set_next_fresh_id);
 }
 

@@ -11,10 +11,15 @@
 #include "dcslam/chi_square.hpp"
 #include "dcslam/errors.hpp"
 #include "dcslam/feature_merging.hpp"
+#include "dcslam/join_tree.hpp"
+#include "dcslam/tentative_features.hpp"
 
 namespace dcslam {
 
 namespace {
+
+// Where the re-linearised tree stops: no mean moved by more than this (m or rad) in a pass.
+constexpr double kRelinearisationTolerance = 1e-9;
 
 // The local maps' EKF counters that DCSlam's stats add up over all local maps.
 constexpr const char* kLocalCounters[] = {"features_merged", "tentative_removed", "jcbb_nodes", "jcbb_bound_hits"};
@@ -42,54 +47,14 @@ std::shared_ptr<const GaussianMap> compact_copy(const GaussianMap& map) {
   return copy;
 }
 
-using TentativeFeature = DCSlam::TentativeFeature;
-
-// A tentative feature once the join of local maps [first_leaf, last_leaf] has met it: the
-// previous local map is met when it is inside, the next one likewise.
-TentativeFeature met(TentativeFeature feature, std::int64_t first_leaf, std::int64_t last_leaf) {
-  feature.needs_previous = feature.needs_previous && feature.leaf <= first_leaf;
-  feature.needs_next = feature.needs_next && feature.leaf >= last_leaf;
-  return feature;
-}
-
-// Indices in `map` of the tentative features that need nothing more after this join: matched
-// there they are confirmed, unmatched they are dropped.
-std::vector<Eigen::Index> last_chance(const GaussianMap& map,
-                                      const std::vector<TentativeFeature>& tentative,
-                                      std::int64_t first_leaf, std::int64_t last_leaf) {
-  std::unordered_set<std::int64_t> wanted;
-  for (const TentativeFeature& feature : tentative) {
-    const TentativeFeature after = met(feature, first_leaf, last_leaf);
-    if (!after.needs_previous && !after.needs_next) wanted.insert(feature.id);
-  }
-  std::vector<Eigen::Index> indices;
-  for (std::size_t k = 0; k < map.ids().size(); ++k) {
-    if (wanted.count(map.ids()[k]) != 0) indices.push_back(static_cast<Eigen::Index>(k));
-  }
-  return indices;
-}
-
-// The tentative features of a join's result: those of both inputs that still need a later
-// join and were not matched in this one (a match confirms a feature: seen in both maps).
-std::vector<TentativeFeature> joined_tentative(const std::vector<TentativeFeature>& first,
-                                               const std::vector<TentativeFeature>& second,
-                                               const MapJoin& join, std::int64_t first_leaf,
-                                               std::int64_t last_leaf) {
-  std::unordered_set<std::int64_t> matched;
-  for (const auto& [from, to] : join.merged_ids()) {
-    matched.insert(from);
-    matched.insert(to);
-  }
-  std::vector<TentativeFeature> kept;
-  for (const auto* side : {&first, &second}) {
-    for (const TentativeFeature& feature : *side) {
-      const TentativeFeature after = met(feature, first_leaf, last_leaf);
-      if ((after.needs_previous || after.needs_next) && matched.count(feature.id) == 0) {
-        kept.push_back(after);
-      }
-    }
-  }
-  return kept;
+// `map` without its past poses: marginalised, since they follow the robot and features in
+// the state.
+GaussianMap without_past_poses(const GaussianMap& map) {
+  GaussianMap out = GaussianMap::uninitialized(map.num_features());
+  out.x() = map.x().head(out.dim());
+  out.P() = map.P().topLeftCorner(out.dim(), out.dim());
+  out.ids() = map.ids();
+  return out;
 }
 
 }  // namespace
@@ -188,7 +153,12 @@ void DCSlam::close_local_map() {
     // Ids of the tentative features the local map removed as expired resolve to -1 from now on.
     std::lock_guard<std::mutex> lock(mutex_);
     for (std::int64_t id : local_->removed_ids()) add_alias(merged_into_, id, -1);
-    for (const auto& [from, to] : local_->merged_ids()) add_alias(merged_into_, from, to);
+    // Each merged id straight to where the local map's chain of merges ends: add_alias() drops
+    // the alias of the id it points to, so copying a chain a -> b -> c link by link would lose
+    // b -> c whenever the hash map gave a -> b last.
+    for (const auto& [from, to] : local_->merged_ids()) {
+      add_alias(merged_into_, from, follow_aliases(local_->merged_ids(), to));
+    }
     for (const char* name : kLocalCounters) closed_maps_counters_[name] += counter(local_->stats().counters, name);
     for (std::int64_t id : local_->map().ids()) leaves_of_[id] = {closed_local_maps_};
   }
@@ -215,6 +185,7 @@ void DCSlam::close_local_map() {
   steps_in_closed_maps_ += local_map_steps_;
   local_map_steps_ = 0;
   ++closed_local_maps_;
+  if (config_.tree_relinearisation > 0) tree_.add_leaf(TreeLeaf{node->map, node->tentative, node->robot_id});
   push_and_merge(std::move(node));
   if (!config_.amortize && !config_.threaded_joins) {
     const auto tasks = queue_;  // a failing join empties queue_ (record_join_failure())
@@ -236,6 +207,10 @@ void DCSlam::push_and_merge(std::shared_ptr<Node> node) {
     task->left = stack_.back();
     stack_.pop_back();
     task->right = std::move(node);
+    if (config_.tree_relinearisation > 0) {
+      tree_.add_join(TreeSpan{task->left->first_leaf, task->left->leaves},
+                     TreeSpan{task->right->first_leaf, task->right->leaves});
+    }
     auto result = std::make_shared<Node>();
     task->result = result;
     result->leaves = task->left->leaves + task->right->leaves;
@@ -325,6 +300,7 @@ std::int64_t DCSlam::work_on(JoinTask& task, std::int64_t budget) {
                             NodeMap{task.right->map, task.right->tentative}, *task.left,
                             *task.right, task.index);
     }
+    task.budgets.push_back(budget);
     const std::int64_t spent = task.join->advance(budget);
     if (task.join->done()) complete(task);
     return spent;
@@ -465,25 +441,32 @@ void DCSlam::finish_joins() {
   }
 }
 
-DCSlam::NodeMap DCSlam::materialize(const std::shared_ptr<Node>& node, IdAliases& aliases, LeafSets& leaves) const {
-  std::shared_ptr<Node> left, right;
-  int index = 0;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    if (node->map) return NodeMap{node->map, node->tentative};
-    left = node->task->left;
-    right = node->task->right;
-    index = node->task->index;
+std::shared_ptr<DCSlam::FrozenNode> DCSlam::freeze(const std::shared_ptr<Node>& node) const {
+  auto frozen = std::make_shared<FrozenNode>();
+  frozen->node = node;
+  if (node->map) {
+    frozen->map = NodeMap{node->map, node->tentative};
+  } else {
+    frozen->left = freeze(node->task->left);
+    frozen->right = freeze(node->task->right);
+    frozen->index = node->task->index;
   }
+  return frozen;
+}
+
+DCSlam::NodeMap DCSlam::materialize(const FrozenNode& node, IdAliases& aliases, LeafSets& leaves) const {
+  if (node.map.map) return node.map;
   // Same inputs and options as the real join: the same result, computed on the side.
-  NodeMap first = materialize(left, aliases, leaves);
-  NodeMap second = materialize(right, aliases, leaves);
-  const std::unique_ptr<MapJoin> join = make_join(first, second, *left, *right, index);
+  NodeMap first = materialize(*node.left, aliases, leaves);
+  NodeMap second = materialize(*node.right, aliases, leaves);
+  const Node& left = *node.left->node;
+  const Node& right = *node.right->node;
+  const std::unique_ptr<MapJoin> join = make_join(first, second, left, right, node.index);
   join->finish();
   record_merges(*join, aliases, leaves);
   return NodeMap{std::make_shared<const GaussianMap>(join->take_result()),
-                 joined_tentative(first.tentative, second.tentative, *join, left->first_leaf,
-                                  right->first_leaf + right->leaves - 1)};
+                 joined_tentative(first.tentative, second.tentative, *join, left.first_leaf,
+                                  right.first_leaf + right.leaves - 1)};
 }
 
 void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, LeafSets& leaves) const {
@@ -502,11 +485,11 @@ void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, LeafSets& le
 
 Estimate DCSlam::estimate() const {
   throw_if_a_join_failed();
-  std::vector<std::shared_ptr<Node>> stack;
+  std::vector<std::shared_ptr<FrozenNode>> stack;
   LeafSets leaves;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    stack = stack_;
+    for (const auto& node : stack_) stack.push_back(freeze(node));
     leaves = leaves_of_;
   }
   auto joined = std::make_shared<GaussianMap>(*compact_copy(local_->map()));
@@ -518,8 +501,8 @@ Estimate DCSlam::estimate() const {
   std::vector<JoinPairingRecord> fold;
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     const int index = -1 - static_cast<int>(it - stack.rbegin());
-    NodeMap first = materialize(*it, aliases, leaves);
-    MapJoin join(first.map, std::move(joined), join_options(index, (*it)->robot_id));
+    NodeMap first = materialize(**it, aliases, leaves);
+    MapJoin join(first.map, std::move(joined), join_options(index, (*it)->node->robot_id));
     join.finish();  // releases its inputs: at most the inputs and the result are alive
     record_merges(join, aliases, leaves);
     fold.push_back(join.pairing_record());
@@ -527,6 +510,25 @@ Estimate DCSlam::estimate() const {
   }
   // The duplicates the joins left, pairs no join could decide (docs/data_association.md).
   merge_duplicates(*joined, aliases, leaves);
+  if (config_.tree_relinearisation > 0 && !stack.empty()) {
+    // The same pairs, every join redone from the local maps and re-linearised (join_tree.hpp).
+    std::vector<TreeSpan> spans;
+    for (const auto& frozen : stack) spans.push_back(TreeSpan{frozen->node->first_leaf, frozen->node->leaves});
+    IdAliases merged;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      merged = merged_into_;
+    }
+    const auto final_id = [&](std::int64_t id) { return follow_aliases(aliases, follow_aliases(merged, id)); };
+    RelinearisationReport report;
+    GaussianMap root = tree_.relinearise(spans, *compact_copy(local_->map()), final_id, *joined, join_options(0, 0),
+                                         config_.tree_relinearisation, kRelinearisationTolerance, &report);
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      relinearisation_ = report;
+    }
+    joined = std::make_shared<GaussianMap>(config_.keep_local_map_poses ? std::move(root) : without_past_poses(root));
+  }
   {
     std::lock_guard<std::mutex> lock(mutex_);
     estimate_aliases_ = std::move(aliases);
@@ -578,10 +580,22 @@ const RunStats& DCSlam::stats() const {
   stats_.counters["joins_created"] = static_cast<double>(events_.size());
   stats_.counters["joins_finished"] = static_cast<double>(finished);
   stats_.counters["stack_depth"] = static_cast<double>(stack_.size());
+  if (config_.tree_relinearisation > 0) {
+    stats_.counters["relinearisation_passes"] = relinearisation_.passes;
+    stats_.counters["relinearisation_last_step"] = relinearisation_.last_step;
+  }
   for (const char* name : kLocalCounters) {
     stats_.counters[name] = counter(local_->stats().counters, name) + counter(closed_maps_counters_, name);
   }
   return stats_;
+}
+
+std::vector<TreeLeaf> DCSlam::tree_leaves() const {
+  if (config_.tree_relinearisation == 0) return {};
+  std::vector<TreeLeaf> leaves;
+  for (std::int64_t k = 0; k < tree_.num_leaves(); ++k) leaves.push_back(tree_.leaf(k));
+  leaves.push_back(TreeLeaf{compact_copy(local_->map()), {}, -1});
+  return leaves;
 }
 
 std::vector<JoinEvent> DCSlam::joins() const {

@@ -133,6 +133,17 @@ void EkfAssociation::clear() {
   sigma_feature_ = 0.0;
 }
 
+EkfAssociation::SavedState EkfAssociation::saved_state() const {
+  return SavedState{hash_.cell_size(), hashed_position_, sigma_feature_};
+}
+
+void EkfAssociation::restore(const SavedState& state) {
+  hash_ = SpatialHash(state.cell_size);
+  hashed_position_ = state.hashed_positions;
+  for (std::size_t k = 0; k < hashed_position_.size(); ++k) hash_.insert(static_cast<int>(k), hashed_position_[k]);
+  sigma_feature_ = state.sigma_feature;
+}
+
 void EkfAssociation::track_sigma(const GaussianMap& map, Index feature) {
   const Index offset = GaussianMap::feature_offset(feature);
   sigma_feature_ = std::max(sigma_feature_, largest_std(map.P().block<2, 2>(offset, offset)));

@@ -462,12 +462,12 @@ std::int64_t MapJoin::relinearise_step_cost() const {
 void MapJoin::begin_relinearisation() {
   const GaussianMap& m1 = *first_;
   const GaussianMap& m2 = *second_;
-  lin_first_robot_ = m1.robot();
-  lin_second_x_ = m2.x();
+  lin_first_robot_ = options_.linearisation ? options_.linearisation->first_robot : m1.robot();
+  lin_second_x_ = options_.linearisation ? options_.linearisation->second_x : m2.x();
   const Index r = static_cast<Index>(pairs_.size());
   report_.iterations = r > 0 ? 1 : 0;
   gauss_newton_.steps = 0;
-  gauss_newton_.converged = r == 0 || options_.max_iterations == 1;
+  gauss_newton_.converged = r == 0 || options_.max_iterations == 1 || options_.linearisation != nullptr;
   if (gauss_newton_.converged) return;
 
   const Index ds = 3 + 4 * r;

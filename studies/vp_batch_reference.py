@@ -32,7 +32,7 @@ and beyond (``--near``, 150 m).
 
 Usage:
     .venv/bin/python studies/vp_batch_reference.py [--seed S] [--max-steps N]
-        [--local-map-features P] [--json OUT]
+        [--local-map-features P] [--tree-relinearisation N] [--json OUT]
 
 This is an analysis tool, not a test of the project's map-agreement target: it reports
 numbers and asserts nothing. Only numpy/scipy are used (no GTSAM); the Gauss-Newton solver is
@@ -337,6 +337,8 @@ def main(argv: Optional[Sequence[str]] = None) -> Dict:
     parser.add_argument("--max-steps", type=int, default=None, help="run only the first N steps")
     parser.add_argument("--local-map-features", type=int, default=None,
                         help="D&C's local map size (default: slam_config()'s)")
+    parser.add_argument("--tree-relinearisation", type=int, default=None,
+                        help="D&C's SlamConfig.tree_relinearisation (default: slam_config()'s)")
     parser.add_argument("--max-iterations", type=int, default=50)
     parser.add_argument("--tolerance", type=float, default=1e-6, help="stop at max |dx| below this")
     parser.add_argument("--near", type=float, default=150.0, help="'near the start' radius [m] (150)")
@@ -352,6 +354,8 @@ def main(argv: Optional[Sequence[str]] = None) -> Dict:
     config = vp.slam_config(seed=args.seed)
     if args.local_map_features is not None:
         config = dataclasses.replace(config, local_map_features=args.local_map_features)
+    if args.tree_relinearisation is not None:
+        config = dataclasses.replace(config, tree_relinearisation=args.tree_relinearisation)
     runs = {name: run_filter(steps, config, name, vp.sensor_offset,
                              max_iterations=args.max_iterations, tolerance=args.tolerance, verbose=args.verbose)
             for name in ("ekf", "dc")}

@@ -54,6 +54,10 @@ struct SlamConfig {
   // sides), added as join_feature_sigma^2 I to each feature of a tested pair. The update still
   // imposes the pairs exactly. 0: the maps' covariances alone (exact in simulation).
   double join_feature_sigma = 0.0;
+  // D&C: Gauss–Newton passes that estimate() makes through the whole tree of joins, redoing
+  // every join from the kept local maps linearised at the previous pass's map (join_tree.hpp).
+  // 0: off, and the local maps are not kept.
+  int tree_relinearisation = 0;
   std::uint64_t seed = 0;
   bool amortize = true;
   // D&C: run joins on a background worker thread instead (the multi-core form of the

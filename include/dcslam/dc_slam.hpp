@@ -29,8 +29,10 @@
 
 #include "dcslam/config.hpp"
 #include "dcslam/ekf_slam.hpp"
+#include "dcslam/join_tree.hpp"
 #include "dcslam/map_joining.hpp"
 #include "dcslam/slam_filter.hpp"
+#include "dcslam/tentative_features.hpp"
 
 namespace dcslam {
 
@@ -66,16 +68,10 @@ class DCSlam : public SlamFilter {
   std::vector<std::int64_t> resolve(const std::vector<std::int64_t>& ids) const override;
   const RunStats& stats() const override;
 
-  // A feature of a closed map seen only once. Its landmark may also have been seen once by
-  // the local map before (`needs_previous`: first seen in the local map's first
-  // tentative_window steps) or after (`needs_next`: still unexpired when the map closed). It is
-  // kept until the joins with those maps, confirmed by a match there, or else dropped.
-  struct TentativeFeature {
-    std::int64_t id = 0;
-    std::int64_t leaf = 0;  // the local map that saw it (0: the first)
-    bool needs_previous = false;
-    bool needs_next = false;
-  };
+  // The local maps as they closed, then the open one (its robot_id -1), each in its own base
+  // frame with the ids it gave its features: what the re-linearised tree starts from. Kept
+  // only with tree_relinearisation > 0 (else empty).
+  std::vector<TreeLeaf> tree_leaves() const;
   // Join events so far (pending ones have step_finished == -1).
   std::vector<JoinEvent> joins() const;
   // The stack's shape, bottom first: local maps held by each map, and its feature count
@@ -86,11 +82,12 @@ class DCSlam : public SlamFilter {
   std::vector<JoinPairingRecord> fold_pairings() const;
   // Blocks until every queued join is done (threaded mode) or runs them (other modes).
   void finish_joins();
-  const SlamConfig& config() const { return config_; }
+  const SlamConfig& config() const override { return config_; }
   // The local map being built (base: the robot pose where it started).
   const EkfSlam& local_map() const { return *local_; }
 
  private:
+  friend struct CheckpointAccess;  // checkpoint.cpp saves and restores the state below
   struct JoinTask;
   struct Node {
     int leaves = 1;
@@ -116,6 +113,8 @@ class DCSlam : public SlamFilter {
     std::weak_ptr<Node> result;
     std::unique_ptr<MapJoin> join;
     std::int64_t deadline_step = 0;
+    // The budget of every advance() so far: a checkpoint redoes them on load.
+    std::vector<std::int64_t> budgets;
   };
 
   void close_local_map();
@@ -141,9 +140,19 @@ class DCSlam : public SlamFilter {
   // The join of two adjacent nodes, with the tentative features whose last chance it is.
   std::unique_ptr<MapJoin> make_join(const NodeMap& first, const NodeMap& second,
                                      const Node& left, const Node& right, int index) const;
-  // The map of `node`, computing pending joins on copies (never touching the real tasks); the
-  // merges those joins make are added to `aliases`.
-  NodeMap materialize(const std::shared_ptr<Node>& node, IdAliases& aliases, LeafSets& leaves) const;
+  // A node as it stood when estimate() began: its map if complete, else the inputs of its
+  // pending join. A join the worker completes during the estimate must not be seen: its
+  // merges would be missing from the leaf sets estimate() copied at the start.
+  struct FrozenNode {
+    std::shared_ptr<Node> node;  // for its fixed fields (leaves, robot id)
+    NodeMap map;                 // map.map null while pending
+    std::shared_ptr<FrozenNode> left, right;
+    int index = 0;
+  };
+  std::shared_ptr<FrozenNode> freeze(const std::shared_ptr<Node>& node) const;  // mutex_ held
+  // The map of a frozen node, computing pending joins on copies (never touching the real
+  // tasks); the merges those joins make are added to `aliases` and `leaves`.
+  NodeMap materialize(const FrozenNode& node, IdAliases& aliases, LeafSets& leaves) const;
   // Merges the duplicates the joins left in the estimate's `map` as the EKF merges its own
   // (each the other's only compatible feature within merge_radius), with "from disjoint local
   // maps" standing in for "never seen in one scan"; records the merges in `aliases` and
@@ -174,6 +183,7 @@ class DCSlam : public SlamFilter {
   IdAliases merged_into_;
   LeafSets leaves_of_;  // of the features of the closed local maps and of the joins done
   std::shared_ptr<const JoinOracle> join_oracle_;
+  JoinTree tree_;  // with tree_relinearisation > 0; front end only
   // Counters of the closed local maps' filters (see kLocalCounters in dc_slam.cpp).
   std::map<std::string, double> closed_maps_counters_;
   // The merges of the joins the last estimate() made on copies: resolve() follows them until
@@ -182,6 +192,8 @@ class DCSlam : public SlamFilter {
   mutable std::vector<JoinPairingRecord> fold_pairings_;  // of the last estimate()
   bool stopping_ = false;
   bool worker_busy_ = false;
+  // Gauss–Newton passes of the last estimate()'s re-linearised tree, and its last step.
+  mutable RelinearisationReport relinearisation_;  // guarded by mutex_
   std::string join_failure_;  // empty unless a join failed (record_join_failure())
   std::thread worker_;
 

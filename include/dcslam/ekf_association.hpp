@@ -102,6 +102,18 @@ class EkfAssociation {
   // The last scan's pairing model (its prepared predictions).
   const EkfPairingModel& model() const { return model_; }
 
+  // What carries over from scan to scan besides the map, for checkpoints (checkpoint.hpp): the
+  // hash's cell size, where it holds each feature (a mean moved by less than the slack is not
+  // re-hashed), and the bound on feature uncertainty. The hash's own bucket order does not
+  // matter: candidates are sorted.
+  struct SavedState {
+    double cell_size = 0.0;
+    std::vector<Vec2> hashed_positions;
+    double sigma_feature = 0.0;
+  };
+  SavedState saved_state() const;
+  void restore(const SavedState& state);
+
  private:
   // candidates() for a query radius already computed.
   void candidates_within(const GaussianMap& map, const Vec2& z, double radius, std::vector<int>& out);

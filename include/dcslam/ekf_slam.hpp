@@ -40,7 +40,7 @@ class EkfSlam : public SlamFilter {
   std::vector<std::int64_t> resolve(const std::vector<std::int64_t>& ids) const override;
   const RunStats& stats() const override { return stats_; }
 
-  const SlamConfig& config() const { return config_; }
+  const SlamConfig& config() const override { return config_; }
   const GaussianMap& map() const { return map_; }
   // Removes every tentative feature now. Does nothing when the policy is off ("known" mode or
   // min_sightings = 1). O(n) per removed feature.
@@ -74,6 +74,7 @@ class EkfSlam : public SlamFilter {
   void set_next_fresh_id(std::int64_t id) { next_fresh_id_ = id; }
 
  private:
+  friend struct CheckpointAccess;  // checkpoint.cpp saves and restores the state below
   // Fills pairing_ (one entry per measurement: feature index, kNewFeature or kRejected).
   // The seam for data association: "known" looks ids up; "nn"/"jcbb" run EkfAssociation.
   void associate(const MeasurementsRef& z, const std::vector<Mat2>& R,

@@ -57,6 +57,14 @@ struct JoinTruthAudit {
   bool consistent = false;
 };
 
+// A linearisation point chosen outside the join (JoinTree::relinearise(), join_tree.hpp): R1
+// in m1's base and m2's state vector, as JoinFrame takes them. The join linearises ⊕ there
+// once, without Gauss–Newton steps of its own.
+struct JoinLinearisation {
+  Vec3 first_robot = Vec3::Zero();
+  Eigen::VectorXd second_x;
+};
+
 struct JoinOptions {
   JoinAssociation association = JoinAssociation::Known;
   double gate_confidence = 0.99;
@@ -74,6 +82,8 @@ struct JoinOptions {
   // docs/divide_and_conquer.md): 1 linearises ⊕ once at the prior means (the one-shot join);
   // more re-linearise at the constrained estimate until the step is negligible.
   int max_iterations = 10;
+  // Set: ⊕ linearised at this point instead (max_iterations is then not used).
+  std::shared_ptr<const JoinLinearisation> linearisation;
   // Keep R1 in the result as a past pose with id first_robot_id (a sparse trajectory at
   // local-map boundaries, docs/design.md §4.5). Past poses the inputs hold are always kept.
   bool keep_first_robot = false;

@@ -9,6 +9,7 @@
 
 #include <Eigen/Core>
 
+#include "dcslam/config.hpp"
 #include "dcslam/gaussian_map.hpp"
 #include "dcslam/geometry.hpp"
 
@@ -97,6 +98,9 @@ class SlamFilter {
   virtual std::vector<std::int64_t> resolve(const std::vector<std::int64_t>& ids) const = 0;
 
   virtual const RunStats& stats() const = 0;
+
+  // The options the filter was built with.
+  virtual const SlamConfig& config() const = 0;
 };
 
 }  // namespace dcslam

@@ -12,7 +12,7 @@ from .config import SlamConfig
 from . import datasets
 from .consistency import chi2_threshold, consistency_index, nees
 from .simulation import REVISIT_SCENARIOS, Simulation, SimulationConfig, revisit_scenario, simulate
-from .slam import DCSlam, DCSlamStats, EkfSlam, Estimate, SlamStats
+from .slam import BatchResult, DCSlam, DCSlamStats, EkfSlam, Estimate, SlamStats
 from . import evaluation, io, metrics, pipeline
 from .metrics import gps_alignment
 from .pipeline import PipelineResult, SlamPipeline
@@ -24,6 +24,7 @@ __all__ = [
     "InvalidArgument",
     "ParseError",
     "SlamConfig",
+    "BatchResult",
     "DCSlam",
     "DCSlamStats",
     "EkfSlam",

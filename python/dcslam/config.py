@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Mapping, Tuple
+from typing import Any, Literal, Mapping, Tuple
 
 import numpy as np
 
 from . import _core
 
-__all__ = ["SlamConfig"]
+__all__ = ["SlamConfig", "Observation", "Association", "JoinAssociation"]
+
+# The option strings, for type checkers and editors; SlamConfig.validate() checks them at run time.
+Observation = Literal["range_bearing", "point"]
+Association = Literal["known", "nn", "jcbb"]
+JoinAssociation = Literal["rjc", "jcbb", "known"]
 
 
 def _is_boolean(value: Any) -> bool:
@@ -80,6 +85,15 @@ class SlamConfig:
             ``join_feature_sigma**2 * I`` to each feature of a tested pair; the update still
             imposes the pairs exactly. 0 (default): the maps' covariances alone. Victoria
             Park's config sets it from the data (docs/victoria_park.md).
+        tree_relinearisation: D&C: Gauss-Newton passes (>= 0) that :meth:`~dcslam.DCSlam.estimate`
+            makes through the whole tree of joins, redoing every join from the kept local
+            maps with the move into the first map's frame linearised at the previous pass's
+            map, until no mean moves by more than 1e-9 (m or rad). The estimate then is the
+            least-squares optimum of "each local map measures the global map" with its full
+            covariance, instead of each join's linearisation where its own inputs were
+            (docs/divide_and_conquer.md, "Re-linearised joins"). 0 (default): off, and the
+            local maps are not kept. Costs about the run's join work per pass, in
+            ``estimate()`` only: the steps are unchanged.
         seed: every random choice is reproducible from it.
         amortize: D&C spreads each join over the following steps (docs/design.md §5.3).
         threaded_joins: D&C runs joins on a background thread while mapping goes on
@@ -89,9 +103,9 @@ class SlamConfig:
             ``joint_covariance`` (docs/design.md §4.5). No effect on :class:`~dcslam.EkfSlam`.
     """
 
-    observation: str = "range_bearing"
+    observation: Observation = "range_bearing"
     sensor_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
-    association: str = "jcbb"
+    association: Association = "jcbb"
     gate_confidence: float = 0.99
     unexplained_density: float = 0.0
     jcbb_max_nodes: int = 20000
@@ -99,12 +113,13 @@ class SlamConfig:
     tentative_window: int = 5
     merge_radius: float = 2.0
     local_map_features: int = 30
-    join_association: str = "rjc"
+    join_association: JoinAssociation = "rjc"
     rjc_b: int = 4
     rjc_p_good: float = 0.8
     rjc_p_fail: float = 0.01
     join_iterations: int = 10
     join_feature_sigma: float = 0.0
+    tree_relinearisation: int = 0
     seed: int = 0
     amortize: bool = True
     threaded_joins: bool = False

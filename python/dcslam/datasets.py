@@ -22,6 +22,7 @@ import numpy as np
 
 from . import _core
 from .config import SlamConfig
+from .packed import PackedSteps
 
 __all__ = ["Step", "VictoriaPark", "Isam2d", "victoria_park", "read_isam2d"]
 
@@ -75,10 +76,11 @@ def _read_only(arrays: dict) -> dict:
 class _Steps(Sequence):
     """The steps of a dataset, built on demand as views into its arrays."""
 
-    def __init__(self, arrays: dict, make_step):
+    def __init__(self, arrays: dict, make_step, packed_steps):
         self._offsets = arrays["offsets"]
         self._make_step = make_step
         self._count = len(self._offsets) - 1
+        self.packed_steps = packed_steps
 
     def __len__(self) -> int:
         return self._count
@@ -122,11 +124,15 @@ class VictoriaPark:
         heading = math.radians(_INITIAL_HEADING_DEG[self.options["steering"]])
         first_fix = self.gps[0, 1:] if len(self.gps) else np.zeros(2)
         self.initial_pose_hint = np.array([first_fix[0], first_fix[1], heading])
-        self.steps = _Steps(arrays, self._step)
+        self.steps = _Steps(arrays, self._step, self.packed_steps)
 
     def _step(self, k: int, rows: slice) -> Step:
         return Step(self.u[k], self.Q[k], self.z[rows], self.R[rows], t=float(self.t[k]),
                     diameters=self.diameters[rows])
+
+    def packed_steps(self) -> PackedSteps:
+        """The arrays behind ``steps``, as :meth:`~dcslam.SlamFilter.run_batch` takes them."""
+        return PackedSteps(self.u, self.Q, self.z, self.R, self.offsets)
 
     def slam_config(self, **overrides) -> SlamConfig:
         """A :class:`~dcslam.SlamConfig` for this dataset: range–bearing from the laser's
@@ -160,11 +166,16 @@ class Isam2d:
         self.landmark_ids, self.pose_ids = arrays["landmark_ids"], arrays["pose_ids"]
         self.odometry_lines = int(arrays["odometry_lines"])
         self.landmark_lines = int(arrays["landmark_lines"])
-        self.steps = _Steps(arrays, self._step)
+        self.steps = _Steps(arrays, self._step, self.packed_steps)
 
     def _step(self, k: int, rows: slice) -> Step:
         return Step(self.u[k], self.Q[k], self.z[rows], self.R[rows],
                     landmark_ids=self.landmark_ids[rows], pose_id=int(self.pose_ids[k]))
+
+    def packed_steps(self) -> PackedSteps:
+        """The arrays behind ``steps`` with the file's landmark ids, as
+        :meth:`~dcslam.SlamFilter.run_batch` takes them."""
+        return PackedSteps(self.u, self.Q, self.z, self.R, self.offsets, self.landmark_ids)
 
     def slam_config(self, **overrides) -> SlamConfig:
         """A :class:`~dcslam.SlamConfig` for replaying the file: Cartesian point

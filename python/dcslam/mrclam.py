@@ -32,6 +32,7 @@ import numpy as np
 from . import _core
 from .config import SlamConfig
 from .datasets import Step, _read_only, _Steps
+from .packed import PackedSteps
 
 __all__ = ["MrClam", "mrclam", "MRCLAM_DEFAULTS", "LOCAL_MAP_FEATURES", "ROBOT_COUNT", "BUNDLED_ROBOTS", "robot_files",
            "read_table", "read_robot", "clean_heading_glitches", "integrate_odometry"]
@@ -455,11 +456,16 @@ class MrClam:
         self.origin = arrays["origin"]
         self.heading_glitches = int(arrays["heading_glitches"])
         self.robot_sightings = int(arrays["robot_sightings"])
-        self.steps = _Steps(arrays, self._step)
+        self.steps = _Steps(arrays, self._step, self.packed_steps)
 
     def _step(self, k: int, rows: slice) -> Step:
         return Step(self.u[k], self.Q[k], self.z[rows], self.R[rows], t=float(self.t[k]),
                     landmark_ids=self.landmark_ids[rows])
+
+    def packed_steps(self) -> PackedSteps:
+        """The arrays behind ``steps`` with the landmark ids, as
+        :meth:`~dcslam.SlamFilter.run_batch` takes them."""
+        return PackedSteps(self.u, self.Q, self.z, self.R, self.offsets, self.landmark_ids)
 
     @property
     def true_ids(self) -> np.ndarray:

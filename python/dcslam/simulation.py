@@ -25,16 +25,18 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Iterator, Optional, Tuple, Union, overload
+from typing import Any, Iterator, Literal, Optional, Tuple, Union, get_args, overload
 
 import numpy as np
 
 from . import _core
-from .config import to_core_struct
+from .config import Observation, to_core_struct
+from .packed import PackedSteps
 
 __all__ = ["SimulationConfig", "Simulation", "Step", "Steps", "simulate", "REVISIT_SCENARIOS", "revisit_scenario"]
 
-TRAJECTORIES = ("straight", "loop", "loop_both_ways", "lawn_mowing", "snail")
+Trajectory = Literal["straight", "loop", "loop_both_ways", "lawn_mowing", "snail"]
+TRAJECTORIES = get_args(Trajectory)
 
 
 @dataclasses.dataclass
@@ -79,7 +81,7 @@ class SimulationConfig:
             spurious ones are uniform over the footprint and have ``true_ids == -1``.
     """
 
-    trajectory: str = "straight"
+    trajectory: Trajectory = "straight"
     steps: int = 500
     seed: int = 0
     step_length: float = 1.0
@@ -87,7 +89,7 @@ class SimulationConfig:
     lane_spacing_steps: int = 3
     odometry_sigma: Tuple[float, float, float] = (0.10, 0.05, math.radians(0.5))
     zero_heading_noise: bool = False
-    observation: str = "range_bearing"
+    observation: Observation = "range_bearing"
     sensor_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
     max_range: float = 3.0
     min_range: float = 0.1
@@ -137,6 +139,7 @@ class Steps:
 
     def __init__(self, sim: "Simulation"):
         self._sim = sim
+        self.packed_steps = sim.packed_steps
 
     def __len__(self) -> int:
         return len(self._sim.odometry)
@@ -197,6 +200,12 @@ class Simulation:
         self.step_offsets: np.ndarray = arrays["step_offsets"]
         self.steps = Steps(self)
 
+    def packed_steps(self) -> PackedSteps:
+        """The arrays behind ``steps`` (one ``Q`` for all), with ``true_ids`` as the landmark
+        ids, as :meth:`~dcslam.SlamFilter.run_batch` takes them."""
+        return PackedSteps(self.odometry, self.Q, self.measurements, self.measurement_covariances,
+                           self.step_offsets, self.true_ids)
+
     def __repr__(self) -> str:
         return (
             f"Simulation({self.config.trajectory!r}, steps={len(self.steps)}, "
@@ -204,7 +213,7 @@ class Simulation:
         )
 
 
-def simulate(trajectory: str, steps: int = 500, seed: int = 0, **overrides: Any) -> Simulation:
+def simulate(trajectory: Trajectory, steps: int = 500, seed: int = 0, **overrides: Any) -> Simulation:
     """Runs the simulator of Paz et al. 2007 (§III.B, Fig. 3) in one C++ call.
 
     Args:

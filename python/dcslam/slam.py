@@ -8,14 +8,16 @@ it from one thread at a time.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Dict, Iterable, List, Optional
+from collections.abc import Sequence
+from typing import Any, Dict, List, Optional, Union, overload
 
 import numpy as np
 
 from . import _core
 from .config import SlamConfig
+from .packed import PackedSteps
 
-__all__ = ["Estimate", "SlamStats", "DCSlamStats", "SlamFilter", "EkfSlam", "DCSlam"]
+__all__ = ["Estimate", "SlamStats", "DCSlamStats", "BatchResult", "SlamFilter", "EkfSlam", "DCSlam"]
 
 
 def _no_past_poses() -> np.ndarray:
@@ -98,6 +100,46 @@ class SlamStats:
         return float(self.step_seconds.sum())
 
 
+@dataclasses.dataclass(frozen=True)
+class BatchResult(Sequence):
+    """What :meth:`SlamFilter.run_batch` returns; also the sequence of each step's ids
+    (``len(result)`` steps, ``result[k]`` a view of ``ids``), as a loop of ``update`` calls
+    would have collected them.
+
+    Attributes:
+        ids: (M,) int64, the feature id each measurement went to, as :meth:`SlamFilter.update`
+            returns them (a new id when it started a feature, -1 when rejected).
+        offsets: (N + 1,) int64; step k's measurements are ``ids[offsets[k]:offsets[k + 1]]``.
+        trajectory: (N + 1, 3) the online pose (x, y in m, phi in rad) as :meth:`SlamFilter.pose`
+            gives it: before the first step, then after each step.
+        step_seconds: (N,) wall time of each step's predict and update, in seconds.
+    """
+
+    ids: np.ndarray
+    offsets: np.ndarray
+    trajectory: np.ndarray
+    step_seconds: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.step_seconds)
+
+    @overload
+    def __getitem__(self, index: int) -> np.ndarray: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> List[np.ndarray]: ...
+
+    def __getitem__(self, index: Union[int, slice]):
+        if isinstance(index, slice):
+            return [self[k] for k in range(*index.indices(len(self)))]
+        k = int(index)
+        if k < 0:
+            k += len(self)
+        if not 0 <= k < len(self):
+            raise IndexError(f"step {index} out of range for {len(self)} steps")
+        return self.ids[self.offsets[k]:self.offsets[k + 1]]
+
+
 class SlamFilter:
     """The interface of :class:`EkfSlam` and :class:`~dcslam.DCSlam` (docs/api.md).
 
@@ -113,7 +155,9 @@ class SlamFilter:
         return self._config
 
     def predict(self, u, Q) -> None:
-        """Moves the robot by ``u`` (3,), the relative motion x_{R(k-1)R(k)}, with covariance Q.
+        """Moves the robot by ``u`` (3,), the relative motion x_{R(k-1)R(k)} (x, y [m], phi
+        [rad]), with covariance Q (3, 3) [m^2, rad^2]. Raises ``ValueError`` naming the argument
+        for a bad shape or value, and leaves the filter unchanged.
 
         ``x_R <- x_R ⊕ u``, ``P_RR <- F P_RR F' + G Q G'``, ``P_RM <- F P_RM`` (docs/design.md §3.1).
         Q (3, 3) must be symmetric positive semi-definite; a zero variance (e.g. a known
@@ -125,10 +169,10 @@ class SlamFilter:
         """Processes one scan and returns, per measurement, the id of its feature.
 
         Args:
-            z: (m, 2) measurements, (r, beta) or (x, y) in the sensor frame per
-                ``SlamConfig.observation``; m may be 0 (an empty list is fine).
-            R: (2, 2) noise covariance for all measurements, or (m, 2, 2); symmetric positive
-                definite.
+            z: (m, 2) measurements in the sensor frame per ``SlamConfig.observation``:
+                (r [m], beta [rad]) or (x [m], y [m]); m may be 0 (an empty list is fine).
+            R: (2, 2) noise covariance for all measurements, or (m, 2, 2), in the units of z
+                squared ([m^2], [rad^2], [m rad]); symmetric positive definite.
             landmark_ids: (m,) int64, required in ``"known"`` association mode and refused in
                 the others. -1 marks a measurement that is not a landmark (rejected).
 
@@ -138,8 +182,14 @@ class SlamFilter:
 
         Paired measurements are applied jointly (docs/design.md §3.2: ``S = H P H' + R``,
         ``K = P H' S^-1``, covariance downdate as one symmetric rank-2k update); new
-        features are then initialised from the updated robot (``f = g(x_R, z)``). Invalid
-        input raises ``ValueError`` naming the argument and leaves the filter unchanged.
+        features are then initialised from the updated robot (``f = g(x_R, z)``).
+
+        Raises:
+            ValueError: a bad shape, dtype or value (:class:`dcslam.InvalidArgument`: a
+                non-finite or absurd number, an R that is not symmetric positive definite, ids
+                missing, refused, repeated in one scan or < -1), naming the argument and row;
+                the filter is left unchanged. For :class:`DCSlam`, also when an earlier join
+                failed (the filter cannot go on).
         """
         return self._core.update(z, R, landmark_ids)
 
@@ -168,18 +218,64 @@ class SlamFilter:
         """Per-step timings and counts; see :class:`SlamStats`."""
         return SlamStats(**self._core.stats)
 
-    def run(self, steps: Iterable[Any], ids_field: Optional[str] = "landmark_ids") -> List[np.ndarray]:
-        """Runs ``predict(s.u, s.Q)`` then ``update(s.z, s.R, ids)`` for every step in one C++ call.
+    def run_batch(self, u, Q, z, R, offsets, landmark_ids=None) -> BatchResult:
+        """Runs ``predict(u[k], Q[k])`` then ``update`` with step k's measurements for every step,
+        in one call into C++ with the GIL released: bitwise what the loop of step calls gives.
 
-        ``ids`` is ``getattr(s, ids_field)`` in ``"known"`` association mode (e.g.
-        ``ids_field="true_ids"`` for simulator steps) and None otherwise; each step's values
-        are converted as :meth:`predict` and :meth:`update` convert theirs, so ``run`` refuses
-        what they refuse. Returns the ids of every update. An invalid step raises
-        ``ValueError`` naming it; earlier steps stay applied.
+        Args:
+            u: (N, 3) relative motions x_{R(k-1) R(k)}: x, y [m], phi [rad].
+            Q: (N, 3, 3) their covariances, or one (3, 3) for every step; symmetric positive
+                semi-definite.
+            z: (M, 2) every step's measurements in step order: (r [m], beta [rad]) or (x, y) [m]
+                in the sensor frame, per ``SlamConfig.observation``.
+            R: (M, 2, 2) their covariances, or one (2, 2) for every measurement; symmetric
+                positive definite.
+            offsets: (N + 1,) integers; step k owns rows ``offsets[k]:offsets[k + 1]`` of z, R
+                and landmark_ids (``offsets[0] == 0``, non-decreasing, ``offsets[N] == M``).
+            landmark_ids: (M,) integers, required in ``"known"`` association mode and refused in
+                the others; -1 marks a measurement that is not a landmark.
+
+        Arrays that are float64 (ids and offsets int64) and C-contiguous are read in place;
+        others are converted once.
+
+        Returns:
+            :class:`BatchResult`: every measurement's id, the online trajectory (N + 1, 3) and
+            each step's wall time.
+
+        Raises:
+            ValueError (:class:`dcslam.InvalidArgument` for values): a bad shape or dtype,
+            naming the array; a value that ``predict`` or ``update`` would refuse, naming the
+            step and its index in the arrays (``"run_batch: step 12 (u[12], Q[12]): predict:
+            argument 'Q' is not positive semi-definite ..."``). Every step is checked before
+            the first one runs, so a refused batch leaves the filter unchanged. A D&C join
+            that fails during the run raises as :meth:`update` would (the steps before stay
+            applied).
+        """
+        ids, trajectory, step_seconds = self._core.run_batch(u, Q, z, R, offsets, landmark_ids)
+        return BatchResult(ids=ids, offsets=np.asarray(offsets, dtype=np.int64), trajectory=trajectory,
+                           step_seconds=step_seconds)
+
+    def run(self, source: Any, ids_field: Optional[str] = "landmark_ids") -> BatchResult:
+        """Runs every step of ``source`` with :meth:`run_batch`.
+
+        ``source`` is a dataset (:class:`~dcslam.datasets.VictoriaPark`,
+        :class:`~dcslam.datasets.Isam2d`), a :class:`~dcslam.Simulation`, their ``steps``, or
+        a :class:`~dcslam.packed.PackedSteps`: their arrays are used in place, with their
+        landmark ids (a simulation's ``true_ids``) in ``"known"`` association mode. Any other
+        iterable of step objects (``s.u, s.Q, s.z, s.R``, and ``getattr(s, ids_field)`` in
+        ``"known"`` mode) is packed first, each value converted as :meth:`predict` and
+        :meth:`update` convert theirs (a bad one raises ``ValueError`` naming the step).
+        ``ids_field=None`` passes no ids.
         """
         use_ids = self._config.association == "known" and ids_field is not None
-        packed = [(s.u, s.Q, s.z, s.R, getattr(s, ids_field) if use_ids else None) for s in steps]
-        return self._core.run(packed)
+        if not isinstance(source, PackedSteps) and hasattr(source, "packed_steps"):
+            source = source.packed_steps()
+        if isinstance(source, PackedSteps):
+            return self.run_batch(source.u, source.Q, source.z, source.R, source.offsets,
+                                  source.landmark_ids if use_ids else None)
+        packed = _core.pack_steps(
+            ((s.u, s.Q, s.z, s.R, getattr(s, ids_field) if use_ids else None) for s in source), use_ids)
+        return self.run_batch(*packed)
 
 
 class EkfSlam(SlamFilter):

@@ -642,6 +642,33 @@ TEST(IteratedJoin, FewerIterationsThanNeededStopEarly) {
   EXPECT_LT(error_two, error_one);
 }
 
+// A linearisation point given from outside (JoinTree's passes) replaces the join's own
+// Gauss–Newton steps: given the prior means, the join is the one-shot join bit for bit,
+// whatever max_iterations says; given another point, it differs.
+TEST(IteratedJoin, AGivenLinearisationPointReplacesTheJoinsOwnSteps) {
+  const auto [m1, m2] = nonlinear_maps(5, 4, 0.6);
+  JoinOptions one_shot;
+  one_shot.max_iterations = 1;
+  const GaussianMap expected = join_maps(m1, m2, one_shot);
+  JoinOptions given;
+  given.max_iterations = 10;
+  auto point = std::make_shared<JoinLinearisation>();
+  point->first_robot = m1.robot();
+  point->second_x = m2.x();
+  given.linearisation = point;
+  JoinReport report;
+  const GaussianMap joined = join_maps(m1, m2, given, &report);
+  EXPECT_EQ(report.iterations, 1);
+  EXPECT_TRUE((joined.x().array() == expected.x().array()).all());
+  EXPECT_TRUE((joined.P().array() == expected.P().array()).all());
+
+  auto elsewhere = std::make_shared<JoinLinearisation>(*point);
+  elsewhere->first_robot.z() += 0.05;
+  given.linearisation = elsewhere;
+  const GaussianMap moved = join_maps(m1, m2, given);
+  EXPECT_GT((moved.x() - expected.x()).cwiseAbs().maxCoeff(), 1e-6);
+}
+
 TEST(IteratedJoin, RejectsANonPositiveIterationCount) {
   const auto [m1, m2] = nonlinear_maps(1, 2);
   JoinOptions options;

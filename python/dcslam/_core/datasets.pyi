@@ -1,0 +1,20 @@
+"""
+Dataset readers (use dcslam.datasets).
+"""
+from __future__ import annotations
+import numpy
+import numpy.typing
+import typing
+__all__: list[str] = ['integrate_odometry', 'load_victoria_park', 'read_isam2d']
+def integrate_odometry(samples: typing.Annotated[numpy.typing.ArrayLike, numpy.float64], t_begin: typing.SupportsFloat | typing.SupportsIndex, t_end: typing.SupportsFloat | typing.SupportsIndex, *, sigma_speed: typing.SupportsFloat | typing.SupportsIndex, sigma_steering: typing.SupportsFloat | typing.SupportsIndex, floor_sigma_xy: typing.SupportsFloat | typing.SupportsIndex, floor_sigma_phi: typing.SupportsFloat | typing.SupportsIndex) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64]]:
+    """
+    Victoria Park's vehicle model: (t, encoder speed, steering) samples -> (u, Q).
+    """
+def load_victoria_park(odometry: str, scans: str, trees: str, gps: str, *, steering: str, max_range: typing.SupportsFloat | typing.SupportsIndex, sigma_range: typing.SupportsFloat | typing.SupportsIndex, sigma_bearing: typing.SupportsFloat | typing.SupportsIndex, sigma_speed: typing.SupportsFloat | typing.SupportsIndex, sigma_steering: typing.SupportsFloat | typing.SupportsIndex, floor_sigma_xy: typing.SupportsFloat | typing.SupportsIndex, floor_sigma_phi: typing.SupportsFloat | typing.SupportsIndex) -> dict:
+    """
+    Reads the four Victoria Park CSVs into flat arrays (one step per laser scan).
+    """
+def read_isam2d(path: str) -> dict:
+    """
+    Reads an iSAM/GTSAM 2D text file (ODOMETRY/LANDMARK lines).
+    """

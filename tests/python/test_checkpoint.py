@@ -1,0 +1,168 @@
+"""Checkpoint and resume: a filter pickled mid-run and resumed in another process goes on
+bitwise as the uninterrupted run (the oracle: the same run, never stopped); deepcopy likewise;
+damaged checkpoints raise ValueError."""
+
+import copy
+import pickle
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import dcslam
+
+STEPS, SPLIT = 3000, 1500
+# 3,000 steps round a 60 m square with 5 % clutter, no ids: a map of a few hundred features
+# that the EKF also runs in a second; every place is revisited (joins match features).
+SCENE = dict(trajectory="loop", steps=STEPS, seed=4, side_steps=15, clutter=0.05, features_per_step=10)
+CASES = {
+    "ekf": ("ekf", dict()),
+    "dc_amortized": ("dc", dict(amortize=True)),
+    "dc_threaded": ("dc", dict(threaded_joins=True)),
+    # the kept local maps and tree shape go into the checkpoint: the resumed estimate()
+    # re-linearises the same tree
+    "dc_tree": ("dc", dict(tree_relinearisation=2)),
+}
+
+
+def scene():
+    parameters = dict(SCENE)
+    return dcslam.simulate(parameters.pop("trajectory"), **parameters)
+
+
+def make_filter(case):
+    name, options = CASES[case]
+    config = dcslam.SlamConfig(local_map_features=20, **options)
+    return dcslam.EkfSlam(config) if name == "ekf" else dcslam.DCSlam(config)
+
+
+def run_steps(slam, sim, begin, end):
+    offsets = sim.step_offsets
+    return slam.run_batch(sim.odometry[begin:end], sim.Q, sim.measurements[offsets[begin]:offsets[end]],
+                          sim.measurement_covariances[offsets[begin]:offsets[end]],
+                          offsets[begin:end + 1] - offsets[begin]).ids
+
+
+def final(slam):
+    if isinstance(slam, dcslam.DCSlam):
+        slam.finish_joins()
+    return slam.estimate()
+
+
+def pending_join_step(slam):
+    """A step at or after SPLIT at which an amortized join has started and not finished."""
+    for join in slam.stats.joins:
+        if join["step_created"] < SPLIT <= join["step_finished"] - 1:
+            return SPLIT
+    for join in slam.stats.joins:
+        if join["step_created"] >= SPLIT and join["step_finished"] - join["step_created"] >= 2:
+            return join["step_created"] + 1
+    raise AssertionError("no join in progress after the split")
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return scene()
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(sim):
+    runs = {}
+    for case in CASES:
+        slam = make_filter(case)
+        ids = run_steps(slam, sim, 0, STEPS)
+        runs[case] = (slam, ids, final(slam))
+    return runs
+
+
+RESUME = textwrap.dedent("""
+    import pickle, sys
+    import numpy as np
+    sys.path.insert(0, {tests!r})
+    import test_checkpoint as t
+    with open({path!r}, "rb") as file:
+        slam = pickle.load(file)
+    sim = t.scene()
+    ids = t.run_steps(slam, sim, {split}, t.STEPS)
+    estimate = t.final(slam)
+    np.savez({out!r}, ids=ids, robot=estimate.robot, landmarks=estimate.landmarks,
+             landmark_ids=estimate.landmark_ids, covariance=estimate.covariance,
+             resolved=slam.resolve(np.arange(-1, 4000)))
+""")
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_a_filter_resumed_in_another_process_is_bitwise_the_uninterrupted_run(sim, uninterrupted, case, tmp_path):
+    reference, reference_ids, reference_estimate = uninterrupted[case]
+    split = pending_join_step(reference) if case == "dc_amortized" else SPLIT
+    slam = make_filter(case)
+    first_ids = run_steps(slam, sim, 0, split)
+    if case == "dc_amortized":
+        assert any(j["step_created"] < split and j["step_finished"] == -1 for j in slam.stats.joins)
+    path = tmp_path / "filter.pkl"
+    with open(path, "wb") as file:
+        pickle.dump(slam, file)
+    out = tmp_path / "resumed.npz"
+    script = RESUME.format(tests=str(__import__("pathlib").Path(__file__).parent), path=str(path), split=split,
+                           out=str(out))
+    subprocess.run([sys.executable, "-c", script], check=True, timeout=300)
+    resumed = np.load(out)
+    np.testing.assert_array_equal(np.concatenate([first_ids, resumed["ids"]]), reference_ids)
+    for field in ("robot", "landmarks", "landmark_ids", "covariance"):
+        np.testing.assert_array_equal(resumed[field], getattr(reference_estimate, field), err_msg=field)
+    np.testing.assert_array_equal(resumed["resolved"], reference.resolve(np.arange(-1, 4000)))
+
+
+@pytest.mark.parametrize("case", ["ekf", "dc_amortized"])
+def test_a_deep_copy_goes_on_as_the_original(sim, uninterrupted, case):
+    _, reference_ids, reference_estimate = uninterrupted[case]
+    slam = make_filter(case)
+    first_ids = run_steps(slam, sim, 0, 700)
+    twin = copy.deepcopy(slam)
+    for filter_ in (slam, twin):
+        later_ids = run_steps(filter_, sim, 700, 1000)
+        np.testing.assert_array_equal(np.concatenate([first_ids, later_ids]), reference_ids[: sim.step_offsets[1000]])
+    np.testing.assert_array_equal(final(twin).covariance, final(slam).covariance)
+    assert len(twin.stats.step_seconds) == len(slam.stats.step_seconds) == 1000
+
+
+def core_state(case):
+    slam = make_filter(case)
+    run_steps(slam, scene(), 0, 100)
+    return slam._core.__getstate__()
+
+
+def restored(core_class, state):
+    filter_ = core_class.__new__(core_class)
+    filter_.__setstate__(state)
+    return filter_
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda b: b[: len(b) // 2], "truncated"),
+    (lambda b: b[:20], "not a dcslam checkpoint|truncated"),
+    (lambda b: b"", "not a dcslam checkpoint"),
+    (lambda b: b[:200] + bytes([b[200] ^ 0x40]) + b[201:], "corrupted"),
+    (lambda b: b[:8] + (99).to_bytes(4, "little") + b[12:], r"format version 99, this dcslam reads version \d+"),
+    (lambda b: b + b"\0", "extended"),
+])
+def test_damaged_checkpoints_raise_value_error(damage, message):
+    state = core_state("dc_amortized")
+    with pytest.raises(ValueError, match=f"checkpoint: .*({message})"):
+        restored(dcslam._core.DCSlam, damage(state))
+
+
+def test_a_checkpoint_of_one_filter_is_refused_by_the_other():
+    with pytest.raises(ValueError, match="checkpoint of an EkfSlam, not of a DCSlam"):
+        restored(dcslam._core.DCSlam, core_state("ekf"))
+    with pytest.raises(ValueError, match="checkpoint of a DCSlam, not of an EkfSlam"):
+        restored(dcslam._core.EkfSlam, core_state("dc_amortized"))
+
+
+def test_a_filter_with_a_join_oracle_is_not_saved():
+    slam = dcslam.DCSlam(dcslam.SlamConfig())
+    slam.set_join_oracle([1], [1], "audit")
+    with pytest.raises(ValueError, match="join oracle"):
+        pickle.dumps(slam)
