@@ -555,8 +555,8 @@ class TruthScores:
     ate_rigid: Optional[TrajectoryError]
     ate_checkpoints: Optional[TrajectoryError]
     robot: RobotScores
-    robot_nees: Any
-    heading_nees: Any
+    robot_nees: Optional[NeesSeries]
+    heading_nees: Optional[NeesSeries]
     map: MapScores
     map_rigid: MapScores
     association: Any
@@ -569,7 +569,7 @@ class TruthScores:
                "landmark_rms_m": self.map.rms, "landmark_rms_rigid_m": self.map_rigid.rms,
                "landmarks_scored": self.map.landmarks, "map_nees": self.map.nees, "map_dof": self.map.dof,
                "map_ci": self.map.consistency_index, "map_ci_rigid": self.map_rigid.consistency_index}
-        if self.robot_nees is not None:
+        if self.robot_nees is not None and self.heading_nees is not None and self.ate_checkpoints is not None:
             out.update(ate_checkpoints_m=self.ate_checkpoints.rmse, robot_nees_mean=self.robot_nees.mean_nees,
                        robot_nees_share_consistent=self.robot_nees.share_consistent,
                        robot_ci_mean=float(np.mean(self.robot_nees.consistency_index)),

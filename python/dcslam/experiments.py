@@ -148,7 +148,7 @@ def _scenario_data(spec: RunSpec):
     if spec.scenario in SIMULATED_SCENARIOS:
         from .simulation import simulate
 
-        sim = simulate(spec.scenario, steps=spec.steps, seed=spec.seed)
+        sim = simulate(spec.scenario, steps=int(spec.steps or 0), seed=spec.seed)  # type: ignore[arg-type]
         cfg = SlamConfig(association="known", join_association="known",
                          local_map_features=spec.local_map_features, seed=spec.seed)
         return sim.steps, cfg, "true_ids", sim.poses, sim.landmarks, np.arange(len(sim.landmarks))
@@ -172,7 +172,7 @@ def run_one(spec: RunSpec) -> RunResult:
     differently with another thread count, and a run must give the same numbers in this
     process, in a pool worker and on a Dask worker (the parallelism is across runs).
     """
-    from threadpoolctl import threadpool_limits
+    from threadpoolctl import threadpool_limits  # type: ignore[import-untyped]
 
     with threadpool_limits(limits=1):
         return _run(spec.validate())
@@ -189,6 +189,8 @@ def _run(spec: RunSpec) -> RunResult:
                           checkpoint_every=spec.every).run()
     scores = score_run(result, poses_true, landmarks_true, landmark_ids_true)
     checkpoints = result.checkpoints
+    # checkpoint_every=spec.every (>= 1) records at least the last step
+    assert checkpoints is not None and scores.robot_nees is not None and scores.heading_nees is not None
     truth = np.asarray(poses_true)[checkpoints.steps]
     heading_error = np.abs(np.arctan2(np.sin(checkpoints.robot[:, 2] - truth[:, 2]),
                                       np.cos(checkpoints.robot[:, 2] - truth[:, 2])))
@@ -234,7 +236,7 @@ def run_experiment(specs: Sequence[RunSpec], backend: str = "local", workers: Op
         if count == 1:
             results = [run_one(spec) for spec in specs]
         else:
-            from joblib import Parallel, delayed
+            from joblib import Parallel, delayed  # type: ignore[import-untyped]
 
             results = Parallel(n_jobs=count, backend="loky")(delayed(run_one)(spec) for spec in specs)
     else:

@@ -25,7 +25,7 @@ import os
 import re
 import zlib
 from importlib import resources
-from typing import Dict, Optional, Tuple, Union
+from typing import Any, Dict, NoReturn, Optional, Tuple, Union
 
 import numpy as np
 
@@ -172,7 +172,7 @@ def read_table(path: PathLike, fields: Tuple[str, ...], integer_fields: Tuple[st
     return values, numbers
 
 
-def _raise_first_bad_token(path: str, fields: Tuple[str, ...], rows) -> None:
+def _raise_first_bad_token(path: str, fields: Tuple[str, ...], rows) -> NoReturn:
     for number, tokens in rows:
         for column, token in enumerate(tokens):
             if not _NUMBER.fullmatch(token):
@@ -222,7 +222,7 @@ def _check_robot(robot) -> int:
     return int(robot)
 
 
-def read_robot(folder: PathLike, robot: int) -> Dict[str, np.ndarray]:
+def read_robot(folder: PathLike, robot: int) -> Dict[str, Any]:
     """One robot's files, checked, as arrays (no steps built).
 
     Returns a dict: ``groundtruth`` (n, 4) t x y theta with the heading glitches repaired
@@ -515,7 +515,7 @@ class MrClam:
         known association (the barcodes) inside local maps and at joins, D&C local maps of
         :data:`LOCAL_MAP_FEATURES` features. Keyword arguments
         override fields (e.g. ``association="jcbb", join_association="rjc"`` to hide the ids)."""
-        values = dict(observation="range_bearing", sensor_offset=(0.0, 0.0, 0.0), association="known",
+        values: Dict[str, Any] = dict(observation="range_bearing", sensor_offset=(0.0, 0.0, 0.0), association="known",
                       join_association="known", local_map_features=LOCAL_MAP_FEATURES)
         values.update(overrides)
         return SlamConfig(**values)
