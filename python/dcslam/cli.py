@@ -402,7 +402,8 @@ def montecarlo(
     steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Simulator: motions per run (default 400); "
                                         "mrclam: only the first N steps (default: all)."),
     every: int = typer.Option(5, "--every", min=1, help="Take the full estimate every N steps."),
-    local_map_features: int = typer.Option(30, "--local-map-features", min=1),
+    local_map_features: Optional[int] = typer.Option(None, "--local-map-features", min=1, help="D&C's local "
+                                                     "map size (default: 30 on the simulator, 8 on mrclam)."),
     extra_noise: float = typer.Option(1.0, "--extra-noise", min=0.0, help="mrclam: added noise's variance as a "
                                       "share of the model's."),
     robot: int = typer.Option(1, "--robot", help="mrclam: the robot."),

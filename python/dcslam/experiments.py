@@ -63,7 +63,8 @@ class RunSpec:
         seed: the simulation's (or the perturbation's) seed, and the filter's.
         steps: simulator: number of motions; MR.CLAM: run only the first ``steps`` (None: all).
         every: take the full estimate every this many steps.
-        local_map_features: D&C's local map size.
+        local_map_features: D&C's local map size (None: the scenario's, 30 for the simulator
+            as in docs/consistency.md, :data:`dcslam.mrclam.LOCAL_MAP_FEATURES` for MR.CLAM).
         extra_noise: MR.CLAM: the added noise's variance as a share of the model's.
         robot, data_dir: MR.CLAM's robot and folder (None: the bundled robot 1).
     """
@@ -73,7 +74,7 @@ class RunSpec:
     seed: int
     steps: Optional[int] = DEFAULT_SIMULATED_STEPS
     every: int = 5
-    local_map_features: int = 30
+    local_map_features: Optional[int] = None
     extra_noise: float = 1.0
     robot: int = 1
     data_dir: Optional[str] = None
@@ -87,6 +88,8 @@ class RunSpec:
             raise ValueError(f"experiments: scenario {self.scenario!r} needs steps >= 1, got {self.steps}")
         if self.steps is not None and self.steps < 1:
             raise ValueError(f"experiments: steps must be >= 1 or None, got {self.steps}")
+        if self.local_map_features is not None and self.local_map_features < 1:
+            raise ValueError(f"experiments: local_map_features must be >= 1 or None, got {self.local_map_features}")
         if self.every < 1:
             raise ValueError(f"experiments: every must be >= 1, got {self.every}")
         return self
@@ -150,10 +153,12 @@ def _scenario_data(spec: RunSpec):
 
         sim = simulate(spec.scenario, steps=int(spec.steps or 0), seed=spec.seed)  # type: ignore[arg-type]
         cfg = SlamConfig(association="known", join_association="known",
-                         local_map_features=spec.local_map_features, seed=spec.seed)
+                         local_map_features=spec.local_map_features or SlamConfig().local_map_features,
+                         seed=spec.seed)
         return sim.steps, cfg, "true_ids", sim.poses, sim.landmarks, np.arange(len(sim.landmarks))
     data = _mrclam(spec.robot, spec.data_dir).perturbed(spec.seed, spec.extra_noise)
-    cfg = data.slam_config(local_map_features=spec.local_map_features, seed=spec.seed)
+    cfg = data.slam_config(seed=spec.seed, **({} if spec.local_map_features is None else
+                                              {"local_map_features": spec.local_map_features}))
     return data.steps, cfg, "landmark_ids", data.poses_true, data.landmarks_true, data.landmark_ids_true
 
 
@@ -202,7 +207,7 @@ def _run(spec: RunSpec) -> RunResult:
         "abs_heading_error": heading_error,
         "heading_sigma": np.sqrt(checkpoints.covariance[:, 2, 2]),
     }
-    row = {**dataclasses.asdict(spec), "steps_run": result.steps, "map_size": result.map_size,
+    row = {**dataclasses.asdict(spec), "steps_run": result.steps, "map_size": result.map_size, "joins": len(result.joins),
            **scores.summary(), "seconds": time.perf_counter() - started}
     return RunResult(spec=spec, row=row, curves=curves)
 

@@ -120,3 +120,13 @@ def test_a_running_scheduler_is_used_by_its_address():
         remote = experiments.run_experiment(specs, scheduler=cluster.scheduler_address)
     assert remote.backend == "dask" and remote.workers is None
     assert [comparable(r) for r in remote.results] == [comparable(r) for r in experiments.run_experiment(specs, workers=1).results]
+
+
+def test_mrclam_runs_use_the_dataset_s_local_map_size_unless_told():
+    mrclam = experiments.run_one(experiments.RunSpec("mrclam", "dc", seed=0, steps=400, every=100))
+    told = experiments.run_one(experiments.RunSpec("mrclam", "dc", seed=0, steps=400, every=100,
+                                                   local_map_features=30))
+    # 8 features (the dataset's choice) close local maps within 400 steps; 30 never do with 15 landmarks.
+    assert experiments.RunSpec("mrclam", "dc", 0).local_map_features is None
+    assert mrclam.row["joins"] > 0 and told.row["joins"] == 0
+    assert told.row["local_map_features"] == 30 and mrclam.row["local_map_features"] is None
