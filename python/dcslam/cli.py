@@ -136,10 +136,14 @@ def _require_writable_folder(output: Path) -> None:
 
 
 def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Path, max_steps: Optional[int],
-                 plots: bool, progress: Optional[bool], gps=None, hint: str = "") -> None:
+                 plots: bool, progress: Optional[bool], gps=None, hint: str = "", truth=None,
+                 checkpoint_every: Optional[int] = None) -> None:
     """Checks the output folder and builds every pipeline first (bad options fail before any
     work), runs them, writes and summarises the results. ``hint`` is added to the message of a
-    refused configuration."""
+    refused configuration. ``truth``: a dataset with ground truth (``poses_true``,
+    ``landmarks_true``, ``landmark_ids_true``, ``true_ids``), scored with
+    :func:`dcslam.evaluation.score_run` (the association too when the run hid the ids)."""
+    from .evaluation import score_run
     from .metrics import gps_alignment, map_agreement, map_trajectory
     from .pipeline import SlamPipeline
 
@@ -147,7 +151,8 @@ def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Pat
     show_progress = console.is_terminal if progress is None else progress
     try:
         pipelines = [SlamPipeline(steps, cfg, filter=filter_name, max_steps=max_steps, progress=show_progress,
-                                  description=f"{name}: {filter_name}") for filter_name in _filters(filter_choice)]
+                                  description=f"{name}: {filter_name}", checkpoint_every=checkpoint_every)
+                     for filter_name in _filters(filter_choice)]
     except ValueError as error:
         _fail(f"cannot build the filter for {name}: {error}{hint}")
     try:
@@ -165,22 +170,34 @@ def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Pat
             except ValueError as error:
                 console.print(f"[yellow]GPS alignment of {result.filter_name} skipped:[/] {error}")
     agreement = map_agreement(results[0].estimate, results[1].estimate) if len(results) == 2 else None
+    scores: Dict[str, object] = {}
+    if truth is not None:
+        hidden_ids = cfg.association != "known"
+        for result in results:
+            scores[result.filter_name] = score_run(result, truth.poses_true, truth.landmarks_true,
+                                                   truth.landmark_ids_true, truth.true_ids if hidden_ids else None)
 
     try:
-        written = _write_outputs(results, alignments, output, plots, name)
+        written = _write_outputs(results, alignments, output, plots, name, truth, scores)
     except OSError as error:  # e.g. the disk filled up during the run
         _fail(f"cannot write the results to --output {output}: {error}")
-    console.print(_summary_table(name, results, alignments, map_alignments, agreement))
+    console.print(_summary_table(name, results, alignments, map_alignments, agreement, scores))
     console.print(f"Outputs in [bold]{output}[/]:")
     for path in written:
         console.print(f"  {path}")
 
 
-def _write_outputs(results, alignments, output: Path, plots: bool, name: str) -> List[Path]:
+def _write_outputs(results, alignments, output: Path, plots: bool, name: str, truth=None, scores=None) -> List[Path]:
     from . import io
 
     output.mkdir(parents=True, exist_ok=True)
     written: List[Path] = []
+    scores = scores or {}
+    if truth is not None and results:
+        # The true pose at each step's time, for evo_ape (docs/mrclam.md).
+        path = output / "trajectory_true.tum"
+        io.write_tum(path, results[0].timestamps, truth.poses_true[1:results[0].steps + 1])
+        written.append(path)
     for result in results:
         tag = result.filter_name
         paths = {kind: output / f"{stem}_{tag}.{ext}" for kind, stem, ext in (
@@ -197,6 +214,8 @@ def _write_outputs(results, alignments, output: Path, plots: bool, name: str) ->
                 "fixes_used": len(alignment.times), "outliers_removed": alignment.outliers,
                 "max_residual_m": float(alignment.residuals.max()),
             }
+        if tag in scores:
+            extra["truth_scores"] = scores[tag].summary()
         io.write_stats_json(paths["stats"], result, extra)
         written += paths.values()
     if plots:
@@ -205,7 +224,9 @@ def _write_outputs(results, alignments, output: Path, plots: bool, name: str) ->
         for result in results:
             alignment = alignments.get(result.filter_name)
             path = output / f"map_{result.filter_name}.png"
-            plot_map(result, path, gps=None if alignment is None else alignment.gps_used, alignment=alignment)
+            plot_map(result, path, gps=None if alignment is None else alignment.gps_used, alignment=alignment,
+                     truth_poses=None if truth is None else truth.poses_true[:result.steps + 1],
+                     truth_landmarks=None if truth is None else truth.landmarks_true)
             written.append(path)
         path = output / "timing.png"
         plot_timing(results, path, title=name)
@@ -213,7 +234,7 @@ def _write_outputs(results, alignments, output: Path, plots: bool, name: str) ->
     return written
 
 
-def _summary_table(name: str, results, alignments, map_alignments, agreement) -> Table:
+def _summary_table(name: str, results, alignments, map_alignments, agreement, scores=None) -> Table:
     table = Table(title=f"{name}: SLAM run")
     table.add_column("")
     for result in results:
@@ -244,7 +265,27 @@ def _summary_table(name: str, results, alignments, map_alignments, agreement) ->
         # Row of a filter: share of its landmarks within the radius of one of the other's.
         row(f"landmarks within {agreement.radius:g} m of the other map",
             [f"{100 * agreement.first_in_second:.1f} %", f"{100 * agreement.second_in_first:.1f} %"])
+    if scores:
+        _truth_rows(row, [scores[r.filter_name] for r in results])
     return table
+
+
+def _truth_rows(row, scores) -> None:
+    """Rows of the scores against a ground truth (:class:`dcslam.evaluation.TruthScores`)."""
+    row("ATE vs truth, first pose / rigid (m)",
+        [f"{s.ate.rmse:.3f} / {s.ate_rigid.rmse:.3f}" if s.ate_rigid else f"{s.ate.rmse:.3f} / -" for s in scores])
+    row("landmark RMS vs truth (m)", [f"{s.map.rms:.3f} ({s.map.landmarks} scored)" for s in scores])
+    row("final robot NEES (CI)", [f"{s.robot.nees:.2f} ({s.robot.consistency_index:.2f})" for s in scores])
+    if scores[0].robot_nees is not None:
+        row("ATE of the full estimate at checkpoints (m)", [f"{s.ate_checkpoints.rmse:.3f}" for s in scores])
+        row("robot NEES over time: mean (share <= chi2 95 %)",
+            [f"{s.robot_nees.mean_nees:.2f} ({100 * s.robot_nees.share_consistent:.0f} %)" for s in scores])
+    row("final map NEES / dof (CI)", [f"{s.map.nees:.1f} / {s.map.dof} ({s.map.consistency_index:.2f})" for s in scores])
+    if scores[0].association is not None:
+        row("pairwise precision / recall",
+            [f"{s.association.pairwise_precision:.4f} / {s.association.pairwise_recall:.4f}" for s in scores])
+        row("features per landmark (wrong merges)",
+            [f"{s.association.features_per_landmark:.2f} ({s.association.wrong_merges})" for s in scores])
 
 
 @run_app.command("victoria-park")
@@ -310,6 +351,123 @@ def run_isam(
     except ValueError as error:
         _fail(str(error))
     _run_dataset(file.name, dataset.steps, cfg, filter, output, max_steps, plots, progress)
+
+
+@run_app.command("mrclam")
+def run_mrclam(
+    robot: int = typer.Option(1, "--robot", help="Robot 1-5 (robot 1 is bundled; others need --data-dir)."),
+    data_dir: Optional[Path] = typer.Option(None, "--data-dir", help="Folder with newRobot<N>_*.txt[.gz], "
+                                            "Barcodes.dat and Landmark_Groundtruth.dat (default: the bundled copy)."),
+    filter: FilterChoice = FILTER_OPTION,
+    output: Path = typer.Option(Path("results/mrclam"), "--output", help="Folder for the outputs."),
+    max_steps: Optional[int] = MAX_STEPS_OPTION,
+    plots: bool = PLOTS_OPTION,
+    association: Optional[AssociationChoice] = typer.Option(
+        None, "--association", help="'known' (default: the barcodes) or 'nn'/'jcbb' (barcodes hidden from the "
+        "filter, used only to score; joins then default to RJC)."),
+    join_association: Optional[JoinAssociationChoice] = JOIN_ASSOCIATION_OPTION,
+    local_map_features: Optional[int] = LOCAL_MAP_OPTION,
+    join_iterations: Optional[int] = JOIN_ITERATIONS_OPTION,
+    checkpoint_every: int = typer.Option(10, "--checkpoint-every", min=1, help="Take the full estimate every N "
+                                         "steps for the robot's NEES over time."),
+    progress: Optional[bool] = PROGRESS_OPTION,
+) -> None:
+    """SLAM on UTIAS MR.CLAM dataset 2: 15 barcoded landmarks, Vicon ground truth.
+
+    Same outputs as victoria-park (no GPS), plus trajectory_true.tum and the truth in the map
+    plots; the summary scores each filter against the truth (ATE, landmark RMS, NEES and
+    consistency index; pairwise precision/recall when the ids are hidden).
+    """
+    from .mrclam import mrclam
+
+    try:
+        dataset = mrclam(robot, data_dir)
+        cfg = dataset.slam_config()
+        if association is not None and association is not AssociationChoice.known and join_association is None:
+            join_association = JoinAssociationChoice.rjc
+        cfg = _config_with(cfg, association, join_association, local_map_features, join_iterations, False)
+    except ValueError as error:
+        _fail(str(error))
+    _run_dataset(f"MR.CLAM robot {robot}", dataset.steps, cfg, filter, output, max_steps, plots, progress,
+                 truth=dataset, checkpoint_every=checkpoint_every)
+
+
+@app.command()
+def montecarlo(
+    scenario: List[str] = typer.Option(["straight"], "--scenario", help="Scenario, repeatable: straight, loop, "
+                                       "loop_both_ways, lawn_mowing, snail (the simulator) or mrclam."),
+    filter: FilterChoice = typer.Option(FilterChoice.both, "--filter", help="Which filter; 'both' runs both."),
+    runs: int = typer.Option(20, "--runs", min=1, help="Runs per scenario (run i has seed --seed + i)."),
+    seed: int = typer.Option(0, "--seed"),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Simulator: motions per run (default 400); "
+                                        "mrclam: only the first N steps (default: all)."),
+    every: int = typer.Option(5, "--every", min=1, help="Take the full estimate every N steps."),
+    local_map_features: Optional[int] = typer.Option(None, "--local-map-features", min=1, help="D&C's local "
+                                                     "map size (default: 30 on the simulator, 8 on mrclam)."),
+    extra_noise: float = typer.Option(1.0, "--extra-noise", min=0.0, help="mrclam: added noise's variance as a "
+                                      "share of the model's."),
+    robot: int = typer.Option(1, "--robot", help="mrclam: the robot."),
+    data_dir: Optional[Path] = typer.Option(None, "--data-dir", help="mrclam: folder with the robot's files."),
+    workers: Optional[int] = typer.Option(None, "--workers", min=1, help="Processes (default: the CPU count); "
+                                          "with --dask, the LocalCluster's workers."),
+    dask: bool = typer.Option(False, "--dask", help="Run on Dask distributed (a LocalCluster of --workers "
+                              "processes unless --scheduler is given)."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of a Dask scheduler "
+                                            "(tcp://host:8786); implies --dask."),
+    output: Path = typer.Option(Path("results/montecarlo"), "--output", help="Folder for the outputs."),
+    plots: bool = PLOTS_OPTION,
+) -> None:
+    """Monte Carlo runs x seeds x filters x scenarios, known association; the paper's Fig. 4 with bands.
+
+    Writes runs.csv (one run per row: the spec, the scores, the time), curves.npz (each run's
+    NEES and consistency index over time), summary.json and fig4_<scenario>.png into --output.
+    """
+    import json
+
+    import numpy as np
+
+    from . import experiments
+    from .io import _plain
+
+    _require_writable_folder(output)
+    try:
+        specs = [spec for name in dict.fromkeys(scenario) for spec in experiments.plan(
+            [name], _filters(filter), runs, seed=seed,
+            steps=steps if steps or name == "mrclam" else experiments.DEFAULT_SIMULATED_STEPS,
+            every=every, local_map_features=local_map_features, extra_noise=extra_noise, robot=robot,
+            data_dir=None if data_dir is None else str(data_dir))]
+        result = experiments.run_experiment(specs, backend="dask" if dask else "local", workers=workers,
+                                            scheduler=scheduler)
+    except ValueError as error:
+        _fail(str(error))
+    except ImportError as error:
+        _fail(f"{error}; install the cluster extra: pip install 'dcslam[cluster]'")
+    summary = experiments.summary(result)
+    try:
+        experiments.write_rows(result.rows, output / "runs.csv")
+        np.savez_compressed(output / "curves.npz", **{
+            f"{r.spec.scenario}/{r.spec.filter}/{r.spec.seed}/{name}": values
+            for r in result.results for name, values in r.curves.items()})
+        (output / "summary.json").write_text(json.dumps(_plain(summary), indent=1) + "\n")
+        if plots:
+            for name in dict.fromkeys(scenario):
+                experiments.fig4_plot(result, output / f"fig4_{name}.png", scenario=name)
+    except OSError as error:
+        _fail(f"cannot write the results to --output {output}: {error}")
+
+    table = Table(title=f"Monte Carlo: {len(result.results)} runs, {result.backend}, {result.seconds:.1f} s")
+    table.add_column("scenario/filter", no_wrap=True)
+    for column in ("runs", "max mean heading CI", "heading CI last quarter", "pose CI last quarter", "ATE (m)",
+                   "landmark RMS (m)", "map CI"):
+        table.add_column(column, justify="right")
+    for group, values in summary["groups"].items():
+        table.add_row(group, str(values["runs"]), f"{values['mean_heading_ci_max']:.2f}",
+                      f"{values['mean_heading_ci_last_quarter']:.2f}", f"{values['mean_robot_ci_last_quarter']:.2f}",
+                      f"{values['mean_ate_m']:.3f}", f"{values['mean_landmark_rms_m']:.3f}",
+                      f"{values['mean_map_ci']:.2f}")
+    console.print(table)
+    console.print(f"Outputs in [bold]{output}[/]: runs.csv, curves.npz, summary.json"
+                  + (", fig4_*.png" if plots else ""))
 
 
 def main() -> None:

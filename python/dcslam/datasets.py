@@ -250,3 +250,10 @@ def read_isam2d(path: PathLike) -> Isam2d:
     """
     path = os.fspath(path)
     return Isam2d(_core.datasets.read_isam2d(path), path)
+
+
+# UTIAS MR.CLAM lives in its own module (it reads its files in Python); it builds its steps with
+# Step and _Steps above, so it is imported last.
+from .mrclam import MrClam, mrclam  # noqa: E402
+
+__all__ += ["MrClam", "mrclam"]

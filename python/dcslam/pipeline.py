@@ -23,7 +23,24 @@ from .config import SlamConfig
 from .metrics import *  # noqa: F401,F403
 from .slam import DCSlam, DCSlamStats, EkfSlam, Estimate, SlamFilter, SlamStats
 
-__all__ = ["FILTERS", "PipelineResult", "SlamPipeline", *_metrics.__all__]
+__all__ = ["FILTERS", "PipelineResult", "RobotCheckpoints", "SlamPipeline", *_metrics.__all__]
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotCheckpoints:
+    """The robot of the full estimate at some steps, with its covariance (for its NEES over
+    time against a truth: :func:`dcslam.evaluation.nees_series`).
+
+    Attributes:
+        steps: (c,) number of steps done at each checkpoint (``poses_true[steps]`` is the
+            matching true pose).
+        robot: (c, 3); covariance: (c, 3, 3), from :meth:`~dcslam.SlamFilter.estimate` (for
+            D&C the anytime full map, every local map joined on copies).
+    """
+
+    steps: np.ndarray
+    robot: np.ndarray
+    covariance: np.ndarray
 
 FILTERS = {"dc": DCSlam, "ekf": EkfSlam}
 
@@ -49,6 +66,8 @@ class PipelineResult:
             D&C it includes the joins still queued (run by ``finish_joins()``, so that
             ``resolve()`` reflects them) and the joins of the maps left on the stack.
         wall_seconds: wall time of the whole run, Python loop included.
+        checkpoints: the robot and its covariance every ``checkpoint_every`` steps and at the
+            end (:class:`RobotCheckpoints`), or ``None``.
     """
 
     filter_name: str
@@ -60,6 +79,7 @@ class PipelineResult:
     stats: SlamStats
     estimate_seconds: float
     wall_seconds: float
+    checkpoints: Optional[RobotCheckpoints] = None
 
     @property
     def steps(self) -> int:
@@ -126,6 +146,9 @@ class SlamPipeline:
             (``"landmark_ids"`` for iSAM files, ``"true_ids"`` for the simulator).
         progress: show a progress bar on the terminal.
         description: label of the progress bar.
+        checkpoint_every: take the full estimate every this many steps (and after the last)
+            and keep its robot and covariance (``result.checkpoints``); ``None``: never. Its
+            time (the estimate's) counts in ``wall_seconds`` but not in the filter's steps.
 
     Raises:
         ValueError: unknown filter name, or options the filter refuses (raised when the
@@ -141,11 +164,15 @@ class SlamPipeline:
         ids_field: str = "landmark_ids",
         progress: bool = False,
         description: Optional[str] = None,
+        checkpoint_every: Optional[int] = None,
     ):
         if filter not in FILTERS:
             raise ValueError(f"SlamPipeline: filter must be one of {', '.join(FILTERS)}, got {filter!r}")
         if max_steps is not None and max_steps < 0:
             raise ValueError(f"SlamPipeline: max_steps must be >= 0, got {max_steps}")
+        if checkpoint_every is not None and checkpoint_every < 1:
+            raise ValueError(f"SlamPipeline: checkpoint_every must be >= 1, got {checkpoint_every}")
+        self.checkpoint_every = checkpoint_every
         self.dataset_steps = dataset_steps
         self.step_count = len(dataset_steps) if max_steps is None else min(max_steps, len(dataset_steps))
         self.config = cfg
@@ -171,6 +198,7 @@ class SlamPipeline:
         timestamps = np.empty(self.step_count)
         trajectory = np.empty((self.step_count, 3))
         returned_ids = []
+        checkpoints: List[tuple] = []
         started = time.perf_counter()
         with _progress_bar(self.progress, self.description, self.step_count) as advance:
             for k in range(self.step_count):
@@ -181,6 +209,9 @@ class SlamPipeline:
                 trajectory[k] = slam.pose()
                 when = getattr(step, "t", None)
                 timestamps[k] = k if when is None else when
+                if self.checkpoint_every and ((k + 1) % self.checkpoint_every == 0 or k + 1 == self.step_count):
+                    full = slam.estimate()
+                    checkpoints.append((k + 1, full.robot, full.covariance[:3, :3]))
                 advance()
         estimate_started = time.perf_counter()
         if isinstance(slam, DCSlam):
@@ -203,7 +234,14 @@ class SlamPipeline:
             stats=slam.stats,
             estimate_seconds=finished - estimate_started,
             wall_seconds=finished - started,
+            checkpoints=_checkpoints(checkpoints) if self.checkpoint_every else None,
         )
+
+
+def _checkpoints(rows: List[tuple]) -> RobotCheckpoints:
+    return RobotCheckpoints(steps=np.array([r[0] for r in rows], dtype=np.int64),
+                            robot=np.array([r[1] for r in rows]).reshape(-1, 3),
+                            covariance=np.array([r[2] for r in rows]).reshape(-1, 3, 3))
 
 
 @contextlib.contextmanager

@@ -64,6 +64,8 @@ def plot_map(
     gps=None,
     alignment: Optional[GpsAlignment] = None,
     title: Optional[str] = None,
+    truth_poses=None,
+    truth_landmarks=None,
 ) -> None:
     """The map with the 95 % ellipse of every landmark and the trajectory (Fig. 5).
 
@@ -77,6 +79,8 @@ def plot_map(
         alignment: when given, the map and trajectory are moved into the GPS frame with it;
             otherwise they are drawn in the frame of the first pose.
         title: figure title (default: filter name, steps, map size).
+        truth_poses, truth_landmarks: (k, 2+) true trajectory and (N, 2) true landmarks to
+            draw, in the frame of the first pose (not moved by ``alignment``), or None.
     """
     estimate = result.estimate
     n = len(estimate.landmarks)
@@ -97,6 +101,14 @@ def plot_map(
     if gps is not None and len(gps):
         gps = np.asarray(gps, dtype=float)
         axes.plot(gps[:, 0], gps[:, 1], ".", color="tab:green", markersize=2, alpha=0.6, label="GPS")
+    if truth_poses is not None and len(truth_poses):
+        truth_poses = np.asarray(truth_poses, dtype=float)
+        axes.plot(truth_poses[:, 0], truth_poses[:, 1], "-", color="tab:green", linewidth=0.8, alpha=0.8,
+                  label="true trajectory")
+    if truth_landmarks is not None and len(truth_landmarks):
+        truth_landmarks = np.asarray(truth_landmarks, dtype=float)
+        axes.plot(truth_landmarks[:, 0], truth_landmarks[:, 1], "x", color="tab:green", markersize=7,
+                  linestyle="none", label=f"true landmarks ({len(truth_landmarks)})")
     if len(trajectory):
         axes.plot(trajectory[:, 0], trajectory[:, 1], "-", color="tab:red", linewidth=0.8, label="robot trajectory")
     if n:
