@@ -145,6 +145,21 @@ TEST_P(DcSlamLinear, EqualsEkfExactly) {
   EXPECT_GT(dc.joins().size(), 2u);
 }
 
+// The re-linearised tree (tree_relinearisation, join_tree.hpp) starts its one pass where the
+// tree is already exact in the linear case, so the pass must keep the EKF's answer.
+TEST(DcSlamTree, OnePassKeepsTheLinearCaseExact) {
+  const auto run = linear_gaussian_run(130, 3);
+  const Estimate ekf = run_ekf(run);
+  for (const int features : {4, 25}) {
+    SlamConfig config = mode_config(features, Mode::Amortized);
+    config.tree_relinearisation = 1;
+    DCSlam dc(config);
+    run_steps(dc, run);
+    EXPECT_LT(relative_difference(dc.estimate(), ekf), 1e-9) << features;
+    EXPECT_EQ(dc.stats().counters.at("relinearisation_passes"), 1.0);
+  }
+}
+
 INSTANTIATE_TEST_SUITE_P(
     LocalMapSizes, DcSlamLinear,
     ::testing::Values(DcCase{4, Mode::Immediate}, DcCase{10, Mode::Immediate},

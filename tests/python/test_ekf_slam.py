@@ -61,7 +61,7 @@ LINEAR_FILTERS = [
     ("dc", dict(local_map_features=5, threaded_joins=True)),
     # the re-linearised tree (test_tree_relinearisation.py): linear models leave nothing to
     # re-linearise, so the passes must keep the exact answer
-    ("dc", dict(local_map_features=3, tree_relinearisation=3)),
+    ("dc", dict(local_map_features=3, tree_relinearisation=1)),
     # Exactness needs every one of the ~115 true pairs of the joins, and a gate of confidence c
     # rejects a fraction 1 - c of true pairs (at 0.99 one join's true pairs of this run have
     # joint D^2 = 17.07 > chi2(6, 0.99) = 16.81): c = 0.9999 makes a miss a ~1 % event. The gate
