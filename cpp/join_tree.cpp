@@ -54,7 +54,6 @@ class GlobalEstimate {
   }
   void set_pose(std::int64_t id, const Vec3& pose) { poses_[id] = pose; }
   bool has_pose(std::int64_t id) const { return poses_.count(id) != 0; }
-  void set_feature(std::int64_t id, const Vec2& feature) { features_[id] = feature; }
   const Vec3& robot() const { return robot_; }
   const Vec2* feature(std::int64_t id) const {
     const auto found = features_.find(id);
@@ -231,14 +230,12 @@ struct BuiltNode {
   std::vector<TentativeFeature> tentative;
 };
 
-// One pass over the tree: every join redone from the leaves, ⊕ linearised at `point`, or,
-// without one, where each join's inputs put it, with the join's own Gauss–Newton steps (the
-// tree as it ran).
+// One pass over the tree: every join redone from the leaves, ⊕ linearised at `point`.
 class TreePass {
  public:
   TreePass(const JoinTree& tree, const std::vector<BuiltNode>& leaves,
            std::shared_ptr<const GaussianMap> current, const JoinOptions& options,
-           const GlobalEstimate* point)
+           const GlobalEstimate& point)
       : tree_(tree), leaves_(leaves), current_(std::move(current)), options_(options), point_(point) {}
 
   // DCSlam::estimate()'s fold: each node of the stack, top first, joined with everything after it.
@@ -276,14 +273,14 @@ class TreePass {
   // Pose of the base of the node starting at `first_leaf`, and of the robot of the node ending
   // at `last_leaf` (num_leaves(): the open local map), in the global frame.
   Vec3 base_pose(std::int64_t first_leaf) const {
-    return first_leaf == 0 ? Vec3::Zero() : point_->pose(tree_.leaf(first_leaf - 1).robot_id);
+    return first_leaf == 0 ? Vec3::Zero() : point_.pose(tree_.leaf(first_leaf - 1).robot_id);
   }
   Vec3 robot_pose(std::int64_t last_leaf) const {
-    return last_leaf == tree_.num_leaves() ? point_->robot() : point_->pose(tree_.leaf(last_leaf).robot_id);
+    return last_leaf == tree_.num_leaves() ? point_.robot() : point_.pose(tree_.leaf(last_leaf).robot_id);
   }
 
   // The join of node `left` (map `first`) with the map `second` of the leaves after it up to
-  // `second_last_leaf`: pairs by id, R1 kept, ⊕ linearised at the global point if there is one.
+  // `second_last_leaf`: pairs by id, R1 kept, ⊕ linearised at the global point.
   JoinOptions options_for(const TreeSpan& left, std::int64_t second_last_leaf, const GaussianMap& first,
                           const GaussianMap& second) const {
     JoinOptions options = options_;
@@ -291,7 +288,6 @@ class TreePass {
     options.oracle = nullptr;
     options.keep_first_robot = true;
     options.first_robot_id = tree_.leaf(left.last_leaf()).robot_id;
-    if (point_ == nullptr) return options;
     // R1 in m1's base, and m2's elements in m2's base (R1), where the global point puts them.
     const Vec3 first_robot = robot_pose(left.last_leaf());
     auto linearisation = std::make_shared<JoinLinearisation>();
@@ -309,11 +305,11 @@ class TreePass {
       // A feature the result does not hold (a tentative one dropped later) stays at its own
       // mean: it is marginalised out unconstrained, so where ⊕ is linearised for it does not
       // change the other elements.
-      const Vec2* global = point_->feature(second.ids()[static_cast<std::size_t>(j)]);
+      const Vec2* global = point_.feature(second.ids()[static_cast<std::size_t>(j)]);
       if (global != nullptr) x.segment<2>(GaussianMap::feature_offset(j)) = inverse_transform_point(first_robot, *global);
     }
     for (Index q = 0; q < second.num_poses(); ++q) {
-      set_pose(second.pose_offset(q), point_->pose(second.pose_ids()[static_cast<std::size_t>(q)]));
+      set_pose(second.pose_offset(q), point_.pose(second.pose_ids()[static_cast<std::size_t>(q)]));
     }
     options.linearisation = std::move(linearisation);
     return options;
@@ -323,7 +319,7 @@ class TreePass {
   const std::vector<BuiltNode>& leaves_;
   std::shared_ptr<const GaussianMap> current_;
   JoinOptions options_;
-  const GlobalEstimate* point_;
+  const GlobalEstimate& point_;
 };
 
 }  // namespace
@@ -380,20 +376,11 @@ GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const Gaus
     boundaries[j].z() = nearest_turn(heading, boundaries[j].z());
   }
   for (std::size_t j = 0; j < boundaries.size(); ++j) point.set_pose(boundary_ids[j], boundaries[j]);
-  // Features the map no longer holds (tentative ones dropped at a join) where their local map puts them.
-  for (std::int64_t k = 0; k <= num_leaves(); ++k) {
-    const GaussianMap& map = k < num_leaves() ? *leaves[static_cast<std::size_t>(k)].map : *open_map;
-    const Vec3 base = k == 0 ? Vec3::Zero() : point.pose(leaf(k - 1).robot_id);
-    for (Index j = 0; j < map.num_features(); ++j) {
-      const std::int64_t id = map.ids()[static_cast<std::size_t>(j)];
-      if (point.feature(id) == nullptr) point.set_feature(id, transform_point(base, map.feature(j)));
-    }
-  }
 
   RelinearisationReport done;
   GaussianMap result;
   for (int pass = 0; pass < max_passes; ++pass) {
-    GaussianMap next = TreePass(*this, leaves, open_map, options, &point).fold(stack);
+    GaussianMap next = TreePass(*this, leaves, open_map, options, point).fold(stack);
     done.last_step = largest_change(pass == 0 ? start : result, next);
     ++done.passes;
     result = std::move(next);
