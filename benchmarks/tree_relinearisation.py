@@ -7,11 +7,13 @@ accuracy and consistency against the truth, and what it costs.
   each is compared with the batch least-squares optimum of the run's own associations (every
   pose and landmark, Gauss-Newton: the tests' oracle ``oracles/batch_least_squares.py``),
   RMS and max over landmarks, with the time of ``estimate()``.
+- ``mrclam``: MR.CLAM robot 1 (bundled), known ids: landmark RMS and final robot error
+  against the Vicon truth for 0, 1, 2, 5 and ``--converged`` passes, and the passes used.
 - ``sim``: the paper's four trajectories, known ids, seeds 0-7: landmark RMS against the
   truth, final robot error, and the final estimate's consistency index (heading, and the
   3-dof pose: NEES / chi2(dof, 0.95), Fig. 4's measure), averaged over the seeds.
 
-Usage: python benchmarks/tree_relinearisation.py [vp|sim|both] [--seeds 8] [--steps 500]
+Usage: python benchmarks/tree_relinearisation.py [vp|sim|mrclam|both] [--seeds 8] [--steps 500]
        [--passes 0,1,2] [--converged 20] [--json FILE]
 """
 
@@ -66,6 +68,24 @@ def victoria_park(seeds: List[int], passes: List[int]) -> List[dict]:
     return rows
 
 
+def mrclam(passes: List[int]) -> List[dict]:
+    dataset = dcslam.datasets.mrclam(robot=1)
+    truth = {int(i): p for i, p in zip(dataset.landmark_ids_true, dataset.landmarks_true)}
+    rows = []
+    for count in passes:
+        slam = dcslam.DCSlam(dataset.slam_config(tree_relinearisation=count))
+        for step in dataset.steps:
+            slam.predict(step.u, step.Q)
+            slam.update(step.z, step.R, step.landmark_ids)
+        estimate = slam.estimate()
+        error = np.array([p - truth[int(i)] for i, p in zip(estimate.landmark_ids, estimate.landmarks)])
+        rows.append(dict(passes=count, landmark_rms=float(np.sqrt(np.mean(np.sum(error ** 2, axis=1)))),
+                         robot_error=float(np.linalg.norm(estimate.robot[:2] - dataset.poses_true[-1][:2])),
+                         passes_used=slam.stats.counters.get("relinearisation_passes", 0.0)))
+        print(rows[-1], flush=True)
+    return rows
+
+
 def simulations(seeds: List[int], passes: List[int], steps: int) -> List[dict]:
     rows = []
     for trajectory in TRAJECTORIES:
@@ -108,7 +128,7 @@ def summarise(rows: List[dict], group: tuple, fields: tuple) -> List[dict]:
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", nargs="?", default="both", choices=("vp", "sim", "both"))
+    parser.add_argument("what", nargs="?", default="both", choices=("vp", "sim", "mrclam", "both"))
     parser.add_argument("--seeds", type=int, default=8)
     parser.add_argument("--steps", type=int, default=500, help="simulated steps per run")
     parser.add_argument("--passes", default="0,1,2", help="pass counts to compare (0: plain D&C)")
@@ -123,6 +143,8 @@ def main(argv=None) -> dict:
         report["vp"] = {"rows": rows, "summary": summarise(rows, ("passes",), ("rms_to_optimum", "max_to_optimum", "estimate_seconds"))}
         for line in report["vp"]["summary"]:
             print("vp", line)
+    if args.what == "mrclam":
+        report["mrclam"] = mrclam(sorted(set([0, 1, 2, 5] + passes)))
     if args.what in ("sim", "both"):
         rows = simulations(seeds, passes, args.steps)
         report["sim"] = {"rows": rows, "summary": summarise(rows, ("trajectory", "passes"),
