@@ -3,6 +3,7 @@
 #include <pybind11/stl.h>
 
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "dcslam/checkpoint.hpp"
@@ -71,7 +72,7 @@ void define_dc_slam(py::module_& m) {
       .def("set_join_oracle",
            [](DCSlam& slam, const std::vector<std::int64_t>& feature_ids,
               const std::vector<std::int64_t>& landmark_ids, const std::string& mode,
-              Eigen::Index min_first_features) {
+              Eigen::Index min_first_features, std::optional<Eigen::Index> max_first_features) {
              if (feature_ids.size() != landmark_ids.size()) {
                throw InvalidArgument("set_join_oracle: feature_ids and landmark_ids differ in length");
              }
@@ -92,10 +93,19 @@ void define_dc_slam(py::module_& m) {
                                      std::to_string(min_first_features));
              }
              oracle->min_first_features = min_first_features;
+             if (max_first_features) {
+               if (*max_first_features < min_first_features) {
+                 throw InvalidArgument("set_join_oracle: max_first_features must be >= min_first_features (" +
+                                       std::to_string(min_first_features) + "), got " +
+                                       std::to_string(*max_first_features));
+               }
+               oracle->max_first_features = *max_first_features;
+             }
              for (std::size_t k = 0; k < feature_ids.size(); ++k) oracle->landmark_of[feature_ids[k]] = landmark_ids[k];
              slam.set_join_oracle(std::move(oracle));
            },
-           py::arg("feature_ids"), py::arg("landmark_ids"), py::arg("mode"), py::arg("min_first_features") = 0)
+           py::arg("feature_ids"), py::arg("landmark_ids"), py::arg("mode"), py::arg("min_first_features") = 0,
+           py::arg("max_first_features") = py::none())
       .def("join_pairings",
            [](const DCSlam& slam) {
              py::list out;

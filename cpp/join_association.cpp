@@ -263,7 +263,10 @@ void JoinAssociator::finish(std::vector<int> feature_of) {
     for (std::size_t j = 0; j < feature_of.size(); ++j) {
       if (feature_of[j] != kStar) result_.own_pairs.emplace_back(feature_of[j], static_cast<Index>(j));
     }
-    if (frame_.first().num_features() >= options_.oracle->min_first_features) apply_oracle(truth, feature_of);
+    const Index n1 = frame_.first().num_features();
+    if (n1 >= options_.oracle->min_first_features && n1 <= options_.oracle->max_first_features) {
+      apply_oracle(truth, feature_of);
+    }
   }
   for (std::size_t j = 0; j < feature_of.size(); ++j) {
     const int i = feature_of[j];

@@ -12,6 +12,7 @@
 // blocks of fixed width so that a join can be spread over many steps (amortized D&C) or run
 // on a worker thread, with bitwise the same result whichever way it is run.
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <unordered_map>
 #include <utility>
@@ -38,9 +39,10 @@ struct JoinOracle {
   };
   Mode mode = Mode::Truth;
   std::unordered_map<std::int64_t, std::int64_t> landmark_of;
-  // The decision is corrected only at joins whose m1 holds at least this many features (the
+  // The decision is corrected only at joins whose m1 holds between these many features (the
   // others are audited and left as they are): to tell which joins' mistakes decide the map.
   Eigen::Index min_first_features = 0;
+  Eigen::Index max_first_features = std::numeric_limits<Eigen::Index>::max();
 };
 
 // A JoinOracle's pairing seen through the join's own pairing model, to tell why a true pair

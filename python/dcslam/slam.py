@@ -392,7 +392,8 @@ class DCSlam(SlamFilter):
         ``estimate()``."""
         return [_pairing_record(record) for record in self._core.fold_pairings()]
 
-    def set_join_oracle(self, feature_ids, landmark_ids, mode: str = "truth", min_first_features: int = 0) -> None:
+    def set_join_oracle(self, feature_ids, landmark_ids, mode: str = "truth", min_first_features: int = 0,
+                        max_first_features: Optional[int] = None) -> None:
         """A research instrument, never for a real run: corrects every join's association with
         the truth, to measure how far it is from what the joined maps allow.
 
@@ -406,7 +407,8 @@ class DCSlam(SlamFilter):
         association's own pairs less the wrong ones; ``"audit"`` changes nothing and records
         the oracle's pairing in :meth:`join_pairings` (why a true pair was not made).
         ``min_first_features`` corrects only the joins whose first map holds at least that
-        many features (the others are audited and left as they are), to tell which joins'
+        many features, and ``max_first_features`` (if given) only those whose first map holds
+        at most that many (the others are audited and left as they are), to tell which joins'
         mistakes decide the final map. Only before the first ``predict()``.
         See ``studies/join_association_ceiling.py``."""
         features = np.asarray(feature_ids)
@@ -417,10 +419,13 @@ class DCSlam(SlamFilter):
         for name, values in (("feature_ids", features), ("landmark_ids", landmarks)):
             if values.size and not np.issubdtype(values.dtype, np.integer):
                 raise ValueError(f"set_join_oracle: {name} must be integers, got dtype {values.dtype}")
-        if isinstance(min_first_features, bool) or not isinstance(min_first_features, (int, np.integer)):
-            raise ValueError(f"set_join_oracle: min_first_features must be an integer, got {min_first_features!r}")
+        for name, bound in (("min_first_features", min_first_features), ("max_first_features", max_first_features)):
+            if bound is None and name == "max_first_features":
+                continue
+            if isinstance(bound, bool) or not isinstance(bound, (int, np.integer)):
+                raise ValueError(f"set_join_oracle: {name} must be an integer, got {bound!r}")
         self._core.set_join_oracle(features.astype(np.int64).tolist(), landmarks.astype(np.int64).tolist(), mode,
-                                   int(min_first_features))
+                                   int(min_first_features), None if max_first_features is None else int(max_first_features))
 
     def finish_joins(self) -> None:
         """Completes every queued join now (waits for the worker in threaded mode)."""

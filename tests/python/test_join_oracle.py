@@ -11,10 +11,10 @@ import dcslam
 from dcslam import evaluation
 
 
-def run(sim, oracle=None, min_first_features=0):
+def run(sim, oracle=None, min_first_features=0, max_first_features=None):
     slam = dcslam.DCSlam(dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=0))
     if oracle is not None:
-        slam.set_join_oracle(*oracle, min_first_features=min_first_features)
+        slam.set_join_oracle(*oracle, min_first_features=min_first_features, max_first_features=max_first_features)
     returned = slam.run(sim.steps)
     slam.finish_joins()
     return slam, returned
@@ -121,6 +121,27 @@ def test_oracle_limited_to_large_joins_corrects_only_those(scene):
     assert corrected > 0 and untouched > 0 and made_wrong > 0
 
 
+def test_oracle_limited_to_a_window_of_sizes_corrects_only_those(scene):
+    # The same with an upper bound: the joins above it decide for themselves again, so the
+    # oracle can single out the joins of one level of the tree.
+    sim, _, _, label, oracle = scene
+    low, high = 40, 60
+    slam, _ = run(sim, (*oracle, "truth"), min_first_features=low, max_first_features=high)
+    inside = above_and_wrong = 0
+    for record in slam.join_pairings():
+        pairs = {tuple(p) for p in record["pairs"].tolist()}
+        truth = {tuple(p) for p in record["truth_pairs"].tolist()}
+        size = len(record["first_ids"])
+        if low <= size <= high:
+            assert pairs == truth
+            inside += 1
+        else:
+            assert pairs == {tuple(p) for p in record["own_pairs"].tolist()}
+            above_and_wrong += size > high and pairs != truth
+    # Joins above the window that the truth would have changed: the bound is what kept them.
+    assert inside > 0 and above_and_wrong > 0
+
+
 def test_bad_oracle_calls_are_named_errors():
     slam = dcslam.DCSlam(dcslam.SlamConfig(association="jcbb", join_association="rjc"))
     with pytest.raises(ValueError, match="mode"):
@@ -133,6 +154,10 @@ def test_bad_oracle_calls_are_named_errors():
         slam.set_join_oracle([1], [2], "truth", min_first_features=-1)
     with pytest.raises(ValueError, match="min_first_features"):
         slam.set_join_oracle([1], [2], "truth", min_first_features=2.5)
+    with pytest.raises(ValueError, match="max_first_features"):
+        slam.set_join_oracle([1], [2], "truth", min_first_features=5, max_first_features=4)
+    with pytest.raises(ValueError, match="max_first_features"):
+        slam.set_join_oracle([1], [2], "truth", max_first_features=2.5)
     slam.predict(np.zeros(3), 1e-4 * np.eye(3))
     with pytest.raises(ValueError, match="before the first predict"):
         slam.set_join_oracle([1], [2], "truth")
