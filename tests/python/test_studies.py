@@ -51,6 +51,15 @@ def test_vp_join_linearisation_on_a_victoria_park_prefix(tmp_path):
     assert join["m2_local"]["batch"]["converged"]
 
 
+def test_revisit_join_linearisation_on_small_loop_laps():
+    printed = run_study("revisit_join_linearisation.py", "--scenario", "small_loop_laps", "--seed", 12,
+                        "--min-features", 100, "--max-features", 200).stdout
+    rows = [line.split() for line in printed.splitlines() if line.strip()[:1].isdigit()]
+    # The two whole-lap joins (8 + 8 local maps); the subtrees' Gauss-Newton converged.
+    assert [row[1] for row in rows] == ["8+8", "8+8"]
+    assert all(int(row[-1]) < 40 for row in rows)
+
+
 def bench_run(filter_name, step_seconds, features=10, total_seconds=None):
     """One run of a hand-made ``dcslam_bench`` JSON output."""
     return {"steps": len(step_seconds), "filter": filter_name, "features": features,
