@@ -20,13 +20,13 @@
 #include <unordered_set>
 #include <vector>
 
-#include "dcslam/association_bench.hpp"
-#include "dcslam/dc_slam.hpp"
-#include "dcslam/ekf_slam.hpp"
-#include "dcslam/errors.hpp"
-#include "dcslam/isam2d.hpp"
-#include "dcslam/simulator.hpp"
-#include "dcslam/victoria_park.hpp"
+#include "association_bench.hpp"
+#include "dcslam/joining/dc_slam.hpp"
+#include "dcslam/estimation/ekf_slam.hpp"
+#include "dcslam/core/errors.hpp"
+#include "dcslam/datasets/isam2d.hpp"
+#include "dcslam/datasets/simulator.hpp"
+#include "dcslam/datasets/victoria_park.hpp"
 
 namespace {
 

@@ -7,7 +7,7 @@ The Normalized Estimation Error Squared of an estimate ``(x, P)`` of the true ``
 
 The chi-squared quantile is the library's own (no scipy at run time), the one the gates use:
 Newton's method on the regularized incomplete gamma function, started from the
-Wilson–Hilferty approximation and kept inside a bisection bracket (``cpp/chi_square.cpp``).
+Wilson–Hilferty approximation and kept inside a bisection bracket (``cpp/core/chi_square.cpp``).
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ def nees(x_est, P, x_true, angle_indices: Sequence[int] = ()) -> float:
 def chi2_threshold(dof: float, alpha: float = 0.05) -> float:
     """The ``1 - alpha`` quantile of the chi-squared distribution with ``dof`` degrees of
     freedom: the NEES bound of Paz et al. 2007, §III.C (``alpha = 0.05`` there). The
-    library's one implementation (``cpp/chi_square.cpp``, which the gates use), taking the
+    library's one implementation (``cpp/core/chi_square.cpp``, which the gates use), taking the
     upper tail itself so that a tiny ``alpha`` keeps its relative accuracy.
 
     Raises:

@@ -8,8 +8,8 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
 
-#include "dcslam/chi_square.hpp"
-#include "dcslam/jcbb.hpp"
+#include "dcslam/core/chi_square.hpp"
+#include "dcslam/association/jcbb.hpp"
 
 namespace dcslam::testing {
 

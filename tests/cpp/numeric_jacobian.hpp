@@ -5,7 +5,7 @@
 
 #include <Eigen/Core>
 
-#include "dcslam/geometry.hpp"
+#include "dcslam/core/geometry.hpp"
 
 namespace dcslam::testing {
 

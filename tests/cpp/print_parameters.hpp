@@ -5,8 +5,8 @@
 // Inline: several test files include it, and ADL finds it in the enums' namespace.
 #include <ostream>
 
-#include "dcslam/config.hpp"
-#include "dcslam/observation.hpp"
+#include "dcslam/core/config.hpp"
+#include "dcslam/core/observation.hpp"
 
 namespace dcslam {
 

@@ -2,8 +2,8 @@
 
 #include <gtest/gtest.h>
 
-#include "dcslam/association_bench.hpp"
-#include "dcslam/errors.hpp"
+#include "association_bench.hpp"
+#include "dcslam/core/errors.hpp"
 
 namespace dcslam {
 namespace {

@@ -3,8 +3,8 @@
 
 #include <gtest/gtest.h>
 
-#include "dcslam/chi_square.hpp"
-#include "dcslam/errors.hpp"
+#include "dcslam/core/chi_square.hpp"
+#include "dcslam/core/errors.hpp"
 
 namespace dcslam {
 namespace {

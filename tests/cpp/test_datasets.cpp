@@ -11,10 +11,10 @@
 #include <string>
 #include <vector>
 
-#include "dcslam/errors.hpp"
-#include "dcslam/isam2d.hpp"
-#include "dcslam/text_reader.hpp"
-#include "dcslam/victoria_park.hpp"
+#include "dcslam/core/errors.hpp"
+#include "dcslam/datasets/isam2d.hpp"
+#include "dcslam/datasets/text_reader.hpp"
+#include "dcslam/datasets/victoria_park.hpp"
 
 namespace fs = std::filesystem;
 using namespace dcslam;

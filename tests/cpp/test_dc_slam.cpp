@@ -7,8 +7,8 @@
 #include <Eigen/LU>
 #include <gtest/gtest.h>
 
-#include "dcslam/dc_slam.hpp"
-#include "dcslam/ekf_slam.hpp"
+#include "dcslam/joining/dc_slam.hpp"
+#include "dcslam/estimation/ekf_slam.hpp"
 #include "print_parameters.hpp"
 
 namespace dcslam {

@@ -11,11 +11,11 @@
 #include <Eigen/Dense>
 #include <gtest/gtest.h>
 
-#include "dcslam/chi_square.hpp"
-#include "dcslam/dc_slam.hpp"
-#include "dcslam/ekf_association.hpp"
-#include "dcslam/ekf_slam.hpp"
-#include "dcslam/observation.hpp"
+#include "dcslam/core/chi_square.hpp"
+#include "dcslam/joining/dc_slam.hpp"
+#include "dcslam/association/ekf_association.hpp"
+#include "dcslam/estimation/ekf_slam.hpp"
+#include "dcslam/core/observation.hpp"
 #include "admissible_hypotheses.hpp"
 #include "print_parameters.hpp"
 

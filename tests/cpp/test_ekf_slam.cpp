@@ -5,11 +5,11 @@
 #include <Eigen/Dense>
 #include <gtest/gtest.h>
 
-#include "dcslam/ekf_slam.hpp"
-#include "dcslam/errors.hpp"
-#include "dcslam/geometry.hpp"
-#include "dcslam/input_checks.hpp"
-#include "dcslam/observation.hpp"
+#include "dcslam/estimation/ekf_slam.hpp"
+#include "dcslam/core/errors.hpp"
+#include "dcslam/core/geometry.hpp"
+#include "dcslam/core/input_checks.hpp"
+#include "dcslam/core/observation.hpp"
 #include "numeric_jacobian.hpp"
 #include "print_parameters.hpp"
 

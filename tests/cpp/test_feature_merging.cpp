@@ -6,7 +6,7 @@
 #include <Eigen/Dense>
 #include <gtest/gtest.h>
 
-#include "dcslam/feature_merging.hpp"
+#include "dcslam/association/feature_merging.hpp"
 
 namespace dcslam {
 namespace {

@@ -2,7 +2,7 @@
 
 #include <gtest/gtest.h>
 
-#include "dcslam/gaussian_map.hpp"
+#include "dcslam/core/gaussian_map.hpp"
 
 namespace dcslam {
 namespace {

@@ -4,9 +4,9 @@
 #include <Eigen/Eigenvalues>
 #include <gtest/gtest.h>
 
-#include "dcslam/errors.hpp"
-#include "dcslam/geometry.hpp"
-#include "dcslam/observation.hpp"
+#include "dcslam/core/errors.hpp"
+#include "dcslam/core/geometry.hpp"
+#include "dcslam/core/observation.hpp"
 #include "numeric_jacobian.hpp"
 #include "print_parameters.hpp"
 

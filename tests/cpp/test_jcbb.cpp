@@ -8,9 +8,9 @@
 #include <Eigen/LU>
 #include <gtest/gtest.h>
 
-#include "dcslam/chi_square.hpp"
-#include "dcslam/errors.hpp"
-#include "dcslam/jcbb.hpp"
+#include "dcslam/core/chi_square.hpp"
+#include "dcslam/core/errors.hpp"
+#include "dcslam/association/jcbb.hpp"
 #include "admissible_hypotheses.hpp"
 
 namespace dcslam {

@@ -4,9 +4,9 @@
 #include <Eigen/Cholesky>
 #include <gtest/gtest.h>
 
-#include "dcslam/ekf_slam.hpp"
-#include "dcslam/jcbb.hpp"
-#include "dcslam/join_association.hpp"
+#include "dcslam/estimation/ekf_slam.hpp"
+#include "dcslam/association/jcbb.hpp"
+#include "dcslam/joining/join_association.hpp"
 #include "print_parameters.hpp"
 
 namespace dcslam {

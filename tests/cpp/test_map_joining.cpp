@@ -5,8 +5,8 @@
 #include <Eigen/LU>
 #include <gtest/gtest.h>
 
-#include "dcslam/errors.hpp"
-#include "dcslam/map_joining.hpp"
+#include "dcslam/core/errors.hpp"
+#include "dcslam/joining/map_joining.hpp"
 #include "numeric_jacobian.hpp"
 
 namespace dcslam {

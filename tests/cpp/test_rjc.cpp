@@ -7,11 +7,11 @@
 #include <Eigen/Eigenvalues>
 #include <gtest/gtest.h>
 
-#include "dcslam/chi_square.hpp"
-#include "dcslam/errors.hpp"
-#include "dcslam/jcbb.hpp"
-#include "dcslam/rjc.hpp"
-#include "dcslam/spatial_hash.hpp"
+#include "dcslam/core/chi_square.hpp"
+#include "dcslam/core/errors.hpp"
+#include "dcslam/association/jcbb.hpp"
+#include "dcslam/association/rjc.hpp"
+#include "dcslam/core/spatial_hash.hpp"
 
 namespace dcslam {
 namespace {

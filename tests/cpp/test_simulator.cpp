@@ -4,8 +4,8 @@
 
 #include <gtest/gtest.h>
 
-#include "dcslam/errors.hpp"
-#include "dcslam/simulator.hpp"
+#include "dcslam/core/errors.hpp"
+#include "dcslam/datasets/simulator.hpp"
 
 namespace dcslam {
 namespace {

@@ -1,6 +1,6 @@
 #include <gtest/gtest.h>
 
-#include "dcslam/slam_filter.hpp"
+#include "dcslam/core/slam_filter.hpp"
 
 namespace dcslam {
 namespace {

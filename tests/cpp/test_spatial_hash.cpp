@@ -6,8 +6,8 @@
 
 #include <gtest/gtest.h>
 
-#include "dcslam/errors.hpp"
-#include "dcslam/spatial_hash.hpp"
+#include "dcslam/core/errors.hpp"
+#include "dcslam/core/spatial_hash.hpp"
 
 namespace dcslam {
 namespace {

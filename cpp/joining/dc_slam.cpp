@@ -1,0 +1,618 @@
+#include "dcslam/joining/dc_slam.hpp"
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <iterator>
+#include <limits>
+#include <unordered_set>
+
+#include "dcslam/core/chi_square.hpp"
+#include "dcslam/core/errors.hpp"
+#include "dcslam/association/feature_merging.hpp"
+#include "dcslam/joining/join_tree.hpp"
+#include "dcslam/joining/tentative_features.hpp"
+
+namespace dcslam {
+
+namespace {
+
+// Where the re-linearised tree stops: no mean moved by more than this (m or rad) in a pass.
+constexpr double kRelinearisationTolerance = 1e-9;
+
+// The local maps' EKF counters that DCSlam's stats add up over all local maps.
+constexpr const char* kLocalCounters[] = {"features_merged", "tentative_removed", "jcbb_nodes", "jcbb_bound_hits"};
+
+double counter(const std::map<std::string, double>& counters, const char* name) {
+  const auto found = counters.find(name);
+  return found == counters.end() ? 0.0 : found->second;
+}
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point start) {
+  return std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+// A copy whose storage fits exactly: local maps keep capacity headroom while they grow,
+// finished ones do not need it.
+std::shared_ptr<const GaussianMap> compact_copy(const GaussianMap& map) {
+  auto copy = std::make_shared<GaussianMap>(
+      GaussianMap::uninitialized(map.num_features(), map.num_poses()));
+  copy->x() = map.x();
+  copy->P() = map.P();
+  copy->ids() = map.ids();
+  copy->pose_ids() = map.pose_ids();
+  return copy;
+}
+
+// `map` without its past poses: marginalised, since they follow the robot and features in
+// the state.
+GaussianMap without_past_poses(const GaussianMap& map) {
+  GaussianMap out = GaussianMap::uninitialized(map.num_features());
+  out.x() = map.x().head(out.dim());
+  out.P() = map.P().topLeftCorner(out.dim(), out.dim());
+  out.ids() = map.ids();
+  return out;
+}
+
+}  // namespace
+
+DCSlam::DCSlam(const SlamConfig& config) : config_(config) {
+  config_.validate();
+  local_ = std::make_unique<EkfSlam>(config_);
+  if (config_.threaded_joins) worker_ = std::thread([this] { worker_loop(); });
+}
+
+DCSlam::~DCSlam() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stopping_ = true;
+  }
+  work_ready_.notify_all();
+  if (worker_.joinable()) worker_.join();
+}
+
+void DCSlam::set_join_oracle(std::shared_ptr<const JoinOracle> oracle) {
+  if (predictions_ > 0 || steps_ > 0) throw InvalidArgument("set_join_oracle: only before the first predict()");
+  join_oracle_ = std::move(oracle);
+}
+
+JoinOptions DCSlam::join_options(int index, std::int64_t first_robot_id) const {
+  JoinOptions options;
+  options.association = config_.join_association;
+  options.gate_confidence = config_.gate_confidence;
+  options.rjc_b = config_.rjc_b;
+  options.rjc_p_good = config_.rjc_p_good;
+  options.rjc_p_fail = config_.rjc_p_fail;
+  options.max_iterations = config_.join_iterations;
+  options.feature_sigma = config_.join_feature_sigma;
+  // Every local-map boundary is the R1 of exactly one join of the tree (or of the anytime
+  // fold): keeping R1 at every join keeps each boundary pose once.
+  options.keep_first_robot = config_.keep_local_map_poses;
+  options.first_robot_id = first_robot_id;
+  options.oracle = join_oracle_;
+  // One reproducible stream per join, whatever the order in which joins are run.
+  options.seed = config_.seed ^ (0x9E3779B97F4A7C15ULL * static_cast<std::uint64_t>(index + 1));
+  return options;
+}
+
+void DCSlam::forget_estimate_aliases() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!estimate_aliases_.empty()) estimate_aliases_.clear();
+}
+
+void DCSlam::begin_step() {
+  stats_.steps.emplace_back();
+  ++steps_;
+  ++local_map_steps_;
+}
+
+void DCSlam::end_step(double seconds) {
+  StepStats& step = stats_.steps.back();
+  step.seconds += seconds;
+  std::int64_t features = local_->map().num_features();
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const auto& node : stack_) features += node->expected_features;
+  step.num_features = features;
+}
+
+void DCSlam::predict(const Vec3& u, const Mat3& Q) {
+  throw_if_a_join_failed();
+  const auto start = Clock::now();
+  local_->predict(u, Q);  // validates first: a bad call changes nothing
+  forget_estimate_aliases();
+  ++predictions_;
+  begin_step();
+  end_step(seconds_since(start));
+}
+
+std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::vector<Mat2>& R,
+                                         const std::vector<std::int64_t>* landmark_ids) {
+  throw_if_a_join_failed();
+  const auto start = Clock::now();
+  std::vector<std::int64_t> ids = local_->update(z, R, landmark_ids);
+  forget_estimate_aliases();
+  if (stats_.steps.empty()) begin_step();  // measurements at the first pose, before any motion
+  const StepStats& local_step = local_->stats().steps.back();
+  StepStats& step = stats_.steps.back();
+  step.measurements += local_step.measurements;
+  step.paired += local_step.paired;
+  step.new_features += local_step.new_features;
+  step.rejected += local_step.rejected;
+  step.association_seconds += local_step.association_seconds;
+  if (local_->map().num_features() >= config_.local_map_features) close_local_map();
+  if (config_.amortize && !config_.threaded_joins) run_amortized_budget();
+  end_step(seconds_since(start));
+  return ids;
+}
+
+void DCSlam::close_local_map() {
+  {
+    // Ids of the tentative features the local map removed as expired resolve to -1 from now on.
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (std::int64_t id : local_->removed_ids()) add_alias(merged_into_, id, -1);
+    // Each merged id straight to where the local map's chain of merges ends: add_alias() drops
+    // the alias of the id it points to, so copying a chain a -> b -> c link by link would lose
+    // b -> c whenever the hash map gave a -> b last.
+    for (const auto& [from, to] : local_->merged_ids()) {
+      add_alias(merged_into_, from, follow_aliases(local_->merged_ids(), to));
+    }
+    for (const char* name : kLocalCounters) closed_maps_counters_[name] += counter(local_->stats().counters, name);
+    for (std::int64_t id : local_->map().ids()) leaves_of_[id] = {closed_local_maps_};
+  }
+  auto node = std::make_shared<Node>();
+  node->map = compact_copy(local_->map());
+  // Features seen once stay until the joins with the neighbouring local maps (the previous
+  // one, for those first seen in this map's first steps; the next one, for those still
+  // unexpired), and are kept only if matched there: the EKF's min_sightings rule across maps.
+  const std::int64_t leaf = closed_local_maps_;
+  const std::int64_t window = config_.tentative_window;
+  const std::int64_t steps = local_->steps();
+  for (const auto& feature : local_->tentative_features()) {
+    node->tentative.push_back(TentativeFeature{
+        feature.id, leaf, leaf > 0 && feature.first_seen_step <= window,
+        steps - feature.last_seen_step <= window});
+  }
+  node->first_leaf = leaf;
+  node->robot_id = predictions_;
+  node->expected_features = node->map->num_features();
+  const std::int64_t next_id = local_->next_fresh_id();
+  local_ = std::make_unique<EkfSlam>(config_);
+  local_->set_next_fresh_id(next_id);
+  local_->keep_tentative_first_seen_until(window);
+  steps_in_closed_maps_ += local_map_steps_;
+  local_map_steps_ = 0;
+  ++closed_local_maps_;
+  if (config_.tree_relinearisation > 0) tree_.add_leaf(TreeLeaf{node->map, node->tentative, node->robot_id});
+  push_and_merge(std::move(node));
+  if (!config_.amortize && !config_.threaded_joins) {
+    const auto tasks = queue_;  // a failing join empties queue_ (record_join_failure())
+    for (const auto& task : tasks) work_on(*task, std::numeric_limits<std::int64_t>::max());
+    queue_.clear();
+  }
+}
+
+// The paper's Algorithm 2: while the new map is at least as big as the top of the stack, pop
+// and join. Joins are only queued here; who runs them depends on the mode.
+void DCSlam::push_and_merge(std::shared_ptr<Node> node) {
+  std::unique_lock<std::mutex> lock(mutex_);
+  const double steps_per_local_map =
+      static_cast<double>(steps_in_closed_maps_) / static_cast<double>(closed_local_maps_);
+  std::vector<std::shared_ptr<JoinTask>> chain;  // joins created now, each waiting on the last
+  while (!stack_.empty() && node->leaves >= stack_.back()->leaves) {
+    auto task = std::make_shared<JoinTask>();
+    task->index = joins_created_++;
+    task->left = stack_.back();
+    stack_.pop_back();
+    task->right = std::move(node);
+    if (config_.tree_relinearisation > 0) {
+      tree_.add_join(TreeSpan{task->left->first_leaf, task->left->leaves},
+                     TreeSpan{task->right->first_leaf, task->right->leaves});
+    }
+    auto result = std::make_shared<Node>();
+    task->result = result;
+    result->leaves = task->left->leaves + task->right->leaves;
+    result->first_leaf = task->left->first_leaf;
+    result->robot_id = task->right->robot_id;
+    result->expected_features =
+        task->left->expected_features + task->right->expected_features;
+    result->expected_poses = task->left->expected_poses + task->right->expected_poses +
+                             (config_.keep_local_map_poses ? 1 : 0);
+    result->task = task;
+    // The result is next needed when as many local maps again have been closed; finishing
+    // within half that time leaves the other half for the joins that will wait on it.
+    task->deadline_step =
+        steps_ + std::max<std::int64_t>(1, static_cast<std::int64_t>(
+                                               0.5 * result->leaves * steps_per_local_map));
+    chain.push_back(task);
+    JoinEvent event;
+    event.index = task->index;
+    event.leaves = result->leaves;
+    event.step_created = steps_;
+    // Sizes as known now (a pending input counts its inputs' sum); exact once finished.
+    event.report.features_first = task->left->expected_features;
+    event.report.features_second = task->right->expected_features;
+    events_.push_back(event);
+    queue_.push_back(task);
+    node = std::move(result);
+  }
+  // A chain's joins run one after the other, and the last one, the biggest, only starts when
+  // the one before it is done: the window up to the last deadline is shared among them in
+  // proportion to their fills (dim^2; r is unknown yet), instead of the last join getting
+  // only what its predecessors' own deadlines leave (a few ms a step for the snail's
+  // 128-leaf join, squeezed into its last 120 steps).
+  if (chain.size() > 1) {
+    const auto fill = [](const JoinTask& task) {
+      const auto dim = static_cast<double>(task.result.lock()->expected_dim());
+      return dim * dim;
+    };
+    double total = 0.0;
+    for (const auto& task : chain) total += fill(*task);
+    const auto window = static_cast<double>(chain.back()->deadline_step - steps_);
+    double done = 0.0;
+    for (std::size_t k = 0; k + 1 < chain.size(); ++k) {
+      done += fill(*chain[k]);
+      chain[k]->deadline_step = std::min(
+          chain[k]->deadline_step,
+          steps_ + std::max<std::int64_t>(1, static_cast<std::int64_t>(window * done / total)));
+    }
+  }
+  stack_.push_back(std::move(node));
+  lock.unlock();
+  work_ready_.notify_all();
+}
+
+void DCSlam::run_amortized_budget() {
+  if (queue_.empty()) return;
+  double budget = 0.0;
+  for (const auto& task : queue_) {
+    // A join not started yet: its fill before association (as MapJoin::remaining_work()).
+    const std::int64_t dim = task->result.lock()->expected_dim();
+    const std::int64_t remaining =
+        task->join ? task->join->remaining_work() : dim * (dim + 1) / 2 + 2 * dim;
+    budget += static_cast<double>(remaining) /
+              static_cast<double>(std::max<std::int64_t>(1, task->deadline_step - steps_));
+  }
+  auto left = static_cast<std::int64_t>(std::ceil(budget));
+  while (left > 0 && !queue_.empty()) {
+    // Earliest deadline first among the joins whose inputs exist: a small join queued behind a
+    // large independent one is done first, so the large one runs at the pace of its own
+    // deadline rather than at the sum of everyone's. The queue's order is post-order, so its
+    // front is always ready.
+    auto next = queue_.begin();
+    for (auto it = queue_.begin(); it != queue_.end(); ++it) {
+      const JoinTask& task = **it;
+      if (task.left->map && task.right->map && task.deadline_step < (*next)->deadline_step) next = it;
+    }
+    JoinTask& task = **next;
+    left -= work_on(task, left);
+    if (task.join && !task.join->done()) break;
+    queue_.erase(next);
+  }
+}
+
+std::int64_t DCSlam::work_on(JoinTask& task, std::int64_t budget) {
+  try {
+    if (!task.join) {
+      task.join = make_join(NodeMap{task.left->map, task.left->tentative},
+                            NodeMap{task.right->map, task.right->tentative}, *task.left,
+                            *task.right, task.index);
+    }
+    task.budgets.push_back(budget);
+    const std::int64_t spent = task.join->advance(budget);
+    if (task.join->done()) complete(task);
+    return spent;
+  } catch (const std::exception& error) {
+    throw InvalidArgument(record_join_failure(task, error));
+  }
+}
+
+std::string DCSlam::record_join_failure(const JoinTask& task, const std::exception& error) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (join_failure_.empty()) {
+    const JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
+    join_failure_ = "DCSlam: join " + std::to_string(task.index) + " (" + std::to_string(event.leaves) +
+                    " local maps, queued at step " + std::to_string(event.step_created) +
+                    ") failed: " + error.what() + "; this filter cannot go on";
+  }
+  queue_.clear();  // the joins after it need its result
+  return join_failure_;
+}
+
+void DCSlam::throw_if_a_join_failed() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!join_failure_.empty()) throw InvalidArgument(join_failure_);
+}
+
+std::unique_ptr<MapJoin> DCSlam::make_join(const NodeMap& first, const NodeMap& second,
+                                           const Node& left, const Node& right,
+                                           int index) const {
+  const std::int64_t first_leaf = left.first_leaf;
+  const std::int64_t last_leaf = right.first_leaf + right.leaves - 1;
+  return std::make_unique<MapJoin>(
+      first.map, second.map, join_options(index, left.robot_id),
+      last_chance(*first.map, first.tentative, first_leaf, last_leaf),
+      last_chance(*second.map, second.tentative, first_leaf, last_leaf));
+}
+
+namespace {
+
+// What a join did to ids: each merged one now names the feature it joined; dropped ones, -1.
+// A merged feature's leaves join those of the feature it was merged into.
+void merge_leaves(LeafSets& leaves, std::int64_t from, std::int64_t to) {
+  if (from == to) return;
+  const auto source = leaves.find(from);
+  if (source == leaves.end()) return;
+  std::vector<std::int64_t>& target = leaves[to];
+  std::vector<std::int64_t> merged;
+  std::set_union(target.begin(), target.end(), source->second.begin(), source->second.end(),
+                 std::back_inserter(merged));
+  target = std::move(merged);
+  leaves.erase(from);
+}
+
+void record_merges(const MapJoin& join, IdAliases& aliases, LeafSets& leaves) {
+  for (const auto& [from, to] : join.merged_ids()) {
+    add_alias(aliases, from, to);
+    merge_leaves(leaves, from, to);
+  }
+  for (std::int64_t id : join.dropped_ids()) {
+    add_alias(aliases, id, -1);
+    leaves.erase(id);
+  }
+}
+
+bool disjoint(const std::vector<std::int64_t>& a, const std::vector<std::int64_t>& b) {
+  for (auto i = a.begin(), j = b.begin(); i != a.end() && j != b.end();) {
+    if (*i == *j) return false;
+    if (*i < *j) ++i; else ++j;
+  }
+  return true;
+}
+
+}  // namespace
+
+void DCSlam::complete(JoinTask& task) {
+  auto map = std::make_shared<const GaussianMap>(task.join->take_result());
+  std::vector<TentativeFeature> tentative =
+      joined_tentative(task.left->tentative, task.right->tentative, *task.join,
+                       task.left->first_leaf, task.right->first_leaf + task.right->leaves - 1);
+  std::lock_guard<std::mutex> lock(mutex_);
+  JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
+  event.report = task.join->report();
+  event.pairing = task.join->pairing_record();
+  event.step_finished = steps_;
+  record_merges(*task.join, merged_into_, leaves_of_);
+  const std::shared_ptr<Node> result = task.result.lock();
+  result->tentative = std::move(tentative);
+  result->map = std::move(map);
+  result->expected_features = result->map->num_features();
+  result->expected_poses = result->map->num_poses();
+  result->task.reset();
+  task.left.reset();
+  task.right.reset();
+}
+
+void DCSlam::worker_loop() {
+  for (;;) {
+    std::shared_ptr<JoinTask> task;
+    {
+      std::unique_lock<std::mutex> lock(mutex_);
+      work_ready_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
+      if (stopping_) return;
+      if (!join_failure_.empty()) {
+        // Joins queued after a failure may need the failed join's result: none of them runs.
+        queue_.clear();
+        work_done_.notify_all();
+        continue;
+      }
+      task = queue_.front();
+      worker_busy_ = true;
+    }
+    try {
+      work_on(*task, std::numeric_limits<std::int64_t>::max());
+    } catch (const std::exception&) {
+      // Recorded by work_on(), which emptied the queue; the caller's next call raises it.
+    }
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (!queue_.empty() && queue_.front() == task) queue_.pop_front();
+      worker_busy_ = false;
+    }
+    work_done_.notify_all();
+  }
+}
+
+void DCSlam::finish_joins() {
+  throw_if_a_join_failed();
+  if (config_.threaded_joins) {
+    {
+      std::unique_lock<std::mutex> lock(mutex_);
+      work_done_.wait(lock, [this] { return queue_.empty() && !worker_busy_; });
+    }
+    throw_if_a_join_failed();
+    return;
+  }
+  while (!queue_.empty()) {
+    work_on(*queue_.front(), std::numeric_limits<std::int64_t>::max());
+    queue_.pop_front();
+  }
+}
+
+std::shared_ptr<DCSlam::FrozenNode> DCSlam::freeze(const std::shared_ptr<Node>& node) const {
+  auto frozen = std::make_shared<FrozenNode>();
+  frozen->node = node;
+  if (node->map) {
+    frozen->map = NodeMap{node->map, node->tentative};
+  } else {
+    frozen->left = freeze(node->task->left);
+    frozen->right = freeze(node->task->right);
+    frozen->index = node->task->index;
+  }
+  return frozen;
+}
+
+DCSlam::NodeMap DCSlam::materialize(const FrozenNode& node, IdAliases& aliases, LeafSets& leaves) const {
+  if (node.map.map) return node.map;
+  // Same inputs and options as the real join: the same result, computed on the side.
+  NodeMap first = materialize(*node.left, aliases, leaves);
+  NodeMap second = materialize(*node.right, aliases, leaves);
+  const Node& left = *node.left->node;
+  const Node& right = *node.right->node;
+  const std::unique_ptr<MapJoin> join = make_join(first, second, left, right, node.index);
+  join->finish();
+  record_merges(*join, aliases, leaves);
+  return NodeMap{std::make_shared<const GaussianMap>(join->take_result()),
+                 joined_tentative(first.tentative, second.tentative, *join, left.first_leaf,
+                                  right.first_leaf + right.leaves - 1)};
+}
+
+void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, LeafSets& leaves) const {
+  if (!(config_.merge_radius > 0.0) || config_.association == Association::Known) return;
+  const auto may_be_one = [&](Eigen::Index a, Eigen::Index b) {
+    const auto& ids = map.ids();
+    return disjoint(leaves[ids[static_cast<std::size_t>(a)]], leaves[ids[static_cast<std::size_t>(b)]]);
+  };
+  const auto merges =
+      merge_duplicate_features(map, config_.merge_radius, chi2_quantile(2, config_.gate_confidence), may_be_one);
+  for (const auto& [from, to] : merges) {
+    add_alias(aliases, from, to);
+    merge_leaves(leaves, from, to);
+  }
+}
+
+Estimate DCSlam::estimate() const {
+  throw_if_a_join_failed();
+  std::vector<std::shared_ptr<FrozenNode>> stack;
+  LeafSets leaves;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const auto& node : stack_) stack.push_back(freeze(node));
+    leaves = leaves_of_;
+  }
+  auto joined = std::make_shared<GaussianMap>(*compact_copy(local_->map()));
+  for (std::int64_t id : joined->ids()) leaves[id] = {closed_local_maps_};
+  // Join everything on the stack, top first, as Algorithm 2 does at the end of the run.
+  // Tentative features all stay, as in the EKF's estimate: the maps after them may not have
+  // had their chance to confirm them yet (and resolve() still points at them).
+  IdAliases aliases;
+  std::vector<JoinPairingRecord> fold;
+  for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
+    const int index = -1 - static_cast<int>(it - stack.rbegin());
+    NodeMap first = materialize(**it, aliases, leaves);
+    MapJoin join(first.map, std::move(joined), join_options(index, (*it)->node->robot_id));
+    join.finish();  // releases its inputs: at most the inputs and the result are alive
+    record_merges(join, aliases, leaves);
+    fold.push_back(join.pairing_record());
+    joined = std::make_shared<GaussianMap>(join.take_result());
+  }
+  // The duplicates the joins left, pairs no join could decide (docs/data_association.md).
+  merge_duplicates(*joined, aliases, leaves);
+  if (config_.tree_relinearisation > 0 && !stack.empty()) {
+    // The same pairs, every join redone from the local maps and re-linearised (join_tree.hpp).
+    std::vector<TreeSpan> spans;
+    for (const auto& frozen : stack) spans.push_back(TreeSpan{frozen->node->first_leaf, frozen->node->leaves});
+    IdAliases merged;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      merged = merged_into_;
+    }
+    const auto final_id = [&](std::int64_t id) { return follow_aliases(aliases, follow_aliases(merged, id)); };
+    RelinearisationReport report;
+    GaussianMap root = tree_.relinearise(spans, *compact_copy(local_->map()), final_id, *joined, join_options(0, 0),
+                                         config_.tree_relinearisation, kRelinearisationTolerance, &report);
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      relinearisation_ = report;
+    }
+    joined = std::make_shared<GaussianMap>(config_.keep_local_map_poses ? std::move(root) : without_past_poses(root));
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    estimate_aliases_ = std::move(aliases);
+    fold_pairings_ = std::move(fold);
+  }
+  // Means and ids first: release_covariance() moves P out without a copy and empties the map.
+  Estimate estimate = to_estimate(*joined, Eigen::MatrixXd());
+  estimate.covariance = joined->release_covariance();
+  return estimate;
+}
+
+Vec3 DCSlam::node_robot(const Node& node) const {
+  if (node.map) return node.map->robot();
+  return compose(node_robot(*node.task->left), node_robot(*node.task->right));
+}
+
+Vec3 DCSlam::pose() const {
+  throw_if_a_join_failed();
+  Vec3 pose = Vec3::Zero();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const auto& node : stack_) pose = compose(pose, node_robot(*node));
+  }
+  return compose(pose, local_->map().robot());
+}
+
+std::vector<std::int64_t> DCSlam::resolve(const std::vector<std::int64_t>& ids) const {
+  std::vector<std::int64_t> resolved_local = local_->resolve(ids);
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<std::int64_t> resolved;
+  resolved.reserve(ids.size());
+  for (std::int64_t id : resolved_local) resolved.push_back(resolve_one(id));
+  return resolved;
+}
+
+std::int64_t DCSlam::resolve_one(std::int64_t id) const {
+  // The real joins' merges first; the estimate's joins take the maps they left.
+  for (const IdAliases* aliases : std::array<const IdAliases*, 2>{&merged_into_, &estimate_aliases_}) {
+    id = follow_aliases(*aliases, id);
+  }
+  return id;
+}
+
+const RunStats& DCSlam::stats() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::int64_t finished = 0;
+  for (const JoinEvent& event : events_) finished += event.step_finished >= 0 ? 1 : 0;
+  stats_.counters["local_maps_closed"] = static_cast<double>(closed_local_maps_);
+  stats_.counters["joins_created"] = static_cast<double>(events_.size());
+  stats_.counters["joins_finished"] = static_cast<double>(finished);
+  stats_.counters["stack_depth"] = static_cast<double>(stack_.size());
+  if (config_.tree_relinearisation > 0) {
+    stats_.counters["relinearisation_passes"] = relinearisation_.passes;
+    stats_.counters["relinearisation_last_step"] = relinearisation_.last_step;
+  }
+  for (const char* name : kLocalCounters) {
+    stats_.counters[name] = counter(local_->stats().counters, name) + counter(closed_maps_counters_, name);
+  }
+  return stats_;
+}
+
+std::vector<TreeLeaf> DCSlam::tree_leaves() const {
+  if (config_.tree_relinearisation == 0) return {};
+  std::vector<TreeLeaf> leaves;
+  for (std::int64_t k = 0; k < tree_.num_leaves(); ++k) leaves.push_back(tree_.leaf(k));
+  leaves.push_back(TreeLeaf{compact_copy(local_->map()), {}, -1});
+  return leaves;
+}
+
+std::vector<JoinEvent> DCSlam::joins() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return events_;
+}
+
+std::vector<JoinPairingRecord> DCSlam::fold_pairings() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return fold_pairings_;
+}
+
+std::vector<std::pair<int, std::int64_t>> DCSlam::stack_shape() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<std::pair<int, std::int64_t>> shape;
+  for (const auto& node : stack_) shape.emplace_back(node->leaves, node->expected_features);
+  return shape;
+}
+
+}  // namespace dcslam

@@ -1,0 +1,394 @@
+#include "dcslam/joining/join_tree.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+#include <unordered_map>
+
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+
+#include "dcslam/core/geometry.hpp"
+
+namespace dcslam {
+
+using Index = Eigen::Index;
+
+void JoinTree::add_leaf(TreeLeaf leaf) { leaves_.push_back(std::move(leaf)); }
+
+void JoinTree::add_join(const TreeSpan& left, const TreeSpan& right) {
+  left_leaves_[{left.first_leaf, left.leaves + right.leaves}] = left.leaves;
+}
+
+std::int64_t JoinTree::left_leaves(const TreeSpan& node) const {
+  const auto found = left_leaves_.find({node.first_leaf, node.leaves});
+  if (found == left_leaves_.end()) {
+    throw std::logic_error("JoinTree: no join made the node of local maps " +
+                           std::to_string(node.first_leaf) + ".." + std::to_string(node.last_leaf()));
+  }
+  return found->second;
+}
+
+namespace {
+
+// Gauss–Newton steps of the first point's boundaries (BoundaryFit); they usually stop earlier,
+// when no boundary moves by more than 1e-12.
+constexpr int kBoundarySteps = 10;
+
+// The angle equal to `angle` modulo 2π that is nearest to `reference`: JoinFrame takes the
+// difference between a prior heading and the heading it is linearised at.
+double nearest_turn(double angle, double reference) { return reference + wrap_angle(angle - reference); }
+
+// x_{from, to}: the pose `to` seen from the pose `from`.
+Vec3 between(const Vec3& from, const Vec3& to) { return compose(invert(from), to); }
+
+// The means a pass linearises at (the previous pass's result), by feature and pose id.
+class GlobalEstimate {
+ public:
+  // Without `with_poses`, the map's past poses are left out.
+  explicit GlobalEstimate(const GaussianMap& map, bool with_poses = true) : robot_(map.robot()) {
+    for (Index k = 0; k < map.num_features(); ++k) features_[map.ids()[static_cast<std::size_t>(k)]] = map.feature(k);
+    if (!with_poses) return;
+    for (Index q = 0; q < map.num_poses(); ++q) poses_[map.pose_ids()[static_cast<std::size_t>(q)]] = map.pose(q);
+  }
+  void set_pose(std::int64_t id, const Vec3& pose) { poses_[id] = pose; }
+  bool has_pose(std::int64_t id) const { return poses_.count(id) != 0; }
+  const Vec3& robot() const { return robot_; }
+  const Vec2* feature(std::int64_t id) const {
+    const auto found = features_.find(id);
+    return found == features_.end() ? nullptr : &found->second;
+  }
+  Vec3 pose(std::int64_t id) const {
+    const auto found = poses_.find(id);
+    if (found == poses_.end()) throw std::logic_error("JoinTree: no boundary pose " + std::to_string(id));
+    return found->second;
+  }
+
+ private:
+  Vec3 robot_;
+  std::unordered_map<std::int64_t, Vec2> features_;
+  std::unordered_map<std::int64_t, Vec3> poses_;
+};
+
+// The largest change of a mean between two results of the tree (features and poses by id,
+// those both hold).
+double largest_change(const GaussianMap& before, const GaussianMap& after) {
+  const GlobalEstimate old(before);
+  double change = (after.robot().head<2>() - old.robot().head<2>()).cwiseAbs().maxCoeff();
+  change = std::max(change, std::abs(wrap_angle(after.robot().z() - old.robot().z())));
+  for (Index k = 0; k < after.num_features(); ++k) {
+    const Vec2* previous = old.feature(after.ids()[static_cast<std::size_t>(k)]);
+    if (previous != nullptr) change = std::max(change, (after.feature(k) - *previous).cwiseAbs().maxCoeff());
+  }
+  for (Index q = 0; q < after.num_poses(); ++q) {
+    const std::int64_t id = after.pose_ids()[static_cast<std::size_t>(q)];
+    if (!old.has_pose(id)) continue;  // the tree's own map keeps no boundary unless asked to
+    const Vec3 previous = old.pose(id);
+    change = std::max(change, (after.pose(q).head<2>() - previous.head<2>()).cwiseAbs().maxCoeff());
+    change = std::max(change, std::abs(wrap_angle(after.pose(q).z() - previous.z())));
+  }
+  return change;
+}
+
+// The base pose, in the global frame, that puts the features of `local` (in its own base frame)
+// nearest to where `global` has them: the 2D rigid least-squares fit. False with fewer than
+// two of them in `global`.
+bool fit_base(const GaussianMap& local, const GlobalEstimate& global, Vec3& base) {
+  std::vector<std::pair<Vec2, Vec2>> matches;  // (local, global)
+  for (Index k = 0; k < local.num_features(); ++k) {
+    const Vec2* position = global.feature(local.ids()[static_cast<std::size_t>(k)]);
+    if (position != nullptr) matches.emplace_back(local.feature(k), *position);
+  }
+  if (matches.size() < 2) return false;
+  Vec2 local_mean = Vec2::Zero(), global_mean = Vec2::Zero();
+  for (const auto& [p, q] : matches) {
+    local_mean += p;
+    global_mean += q;
+  }
+  local_mean /= static_cast<double>(matches.size());
+  global_mean /= static_cast<double>(matches.size());
+  double dot = 0.0, cross = 0.0;
+  for (const auto& [p, q] : matches) {
+    const Vec2 a = p - local_mean, b = q - global_mean;
+    dot += a.dot(b);
+    cross += a.x() * b.y() - a.y() * b.x();
+  }
+  const double heading = std::atan2(cross, dot);
+  const double c = std::cos(heading), s = std::sin(heading);
+  Mat2 rotation;
+  rotation << c, -s, s, c;
+  base.head<2>() = global_mean - rotation * local_mean;
+  base.z() = heading;
+  return true;
+}
+
+// The local-map boundaries B_1..B_L that best explain the local maps given the map's features
+// and robot held fixed: Gauss–Newton over the boundaries alone. Local map k (the open one
+// last) measures [⊖B_k ⊕ B_{k+1}; ⊖B_k ⊕ F_i] (B_0 the origin; the open map's robot the
+// map's), so the normal equations are block-tridiagonal in the boundaries and each step is
+// O(L) (block Thomas elimination) after O(p^3) per local map for its information matrix. At
+// the optimum of the whole problem this gives the optimum's own boundaries, so a pass
+// linearised there stays there (the linear case stays exact, a two-map tree at its join).
+class BoundaryFit {
+ public:
+  BoundaryFit(const std::vector<const GaussianMap*>& maps, const GlobalEstimate& point) {
+    for (const GaussianMap* map : maps) {
+      // Rows measured: the robot (the open map's too) and the features the map holds; the
+      // others (tentative features dropped later) are marginalised out of the local map.
+      std::vector<Index> rows = {0, 1, 2};
+      std::vector<Vec2> features;
+      for (Index j = 0; j < map->num_features(); ++j) {
+        const Vec2* global = point.feature(map->ids()[static_cast<std::size_t>(j)]);
+        if (global == nullptr) continue;
+        rows.push_back(GaussianMap::feature_offset(j));
+        rows.push_back(GaussianMap::feature_offset(j) + 1);
+        features.push_back(*global);
+      }
+      const auto n = static_cast<Index>(rows.size());
+      Eigen::MatrixXd covariance(n, n);
+      Eigen::VectorXd mean(n);
+      for (Index a = 0; a < n; ++a) {
+        mean(a) = map->x()(rows[static_cast<std::size_t>(a)]);
+        for (Index b = 0; b < n; ++b) covariance(a, b) = map->P()(rows[static_cast<std::size_t>(a)], rows[static_cast<std::size_t>(b)]);
+      }
+      // A zero variance (a known heading, a map just opened) is a constraint: a tiny floor
+      // keeps the information finite and weights it as one.
+      const double floor = 1e-12 * std::max(1.0, covariance.diagonal().cwiseAbs().maxCoeff());
+      covariance.diagonal().array() += floor;
+      information_.push_back(covariance.ldlt().solve(Eigen::MatrixXd::Identity(n, n)));
+      means_.push_back(std::move(mean));
+      features_.push_back(std::move(features));
+    }
+  }
+
+  // Up to `steps` Gauss–Newton steps from `boundaries` (B_1..B_L), the open map's robot fixed.
+  void solve(std::vector<Vec3>& boundaries, const Vec3& robot, int steps) const {
+    const std::size_t L = boundaries.size();
+    for (int step = 0; step < steps; ++step) {
+      std::vector<Mat3> diagonal(L, Mat3::Zero()), upper(L, Mat3::Zero());
+      std::vector<Vec3> gradient(L, Vec3::Zero());
+      for (std::size_t k = 0; k <= L; ++k) {
+        const Vec3 base = k == 0 ? Vec3::Zero() : boundaries[k - 1];
+        const Vec3 end = k == L ? robot : boundaries[k];
+        const Eigen::VectorXd& z = means_[k];
+        const auto n = z.size();
+        Eigen::MatrixXd J = Eigen::MatrixXd::Zero(n, 6);  // d h / d [B_k, B_{k+1}]
+        Eigen::VectorXd error(n);
+        Mat3 J_inverse, J_first, J_second;
+        const Vec3 inverse = invert(base, &J_inverse);
+        const Vec3 between = compose(inverse, end, &J_first, &J_second);
+        error.head<3>() = z.head<3>() - between;
+        error(2) = wrap_angle(error(2));
+        J.block<3, 3>(0, 0) = J_first * J_inverse;
+        J.block<3, 3>(0, 3) = J_second;
+        for (std::size_t i = 0; i < features_[k].size(); ++i) {
+          Mat23 J_base;
+          const Index row = 3 + 2 * static_cast<Index>(i);
+          error.segment<2>(row) = z.segment<2>(row) - inverse_transform_point(base, features_[k][i], &J_base);
+          J.block<2, 3>(row, 0) = J_base;
+        }
+        const Eigen::MatrixXd weighted = information_[k] * J;  // Λ J
+        const Eigen::Matrix<double, 6, 6> normal = J.transpose() * weighted;
+        const Eigen::Matrix<double, 6, 1> rhs = weighted.transpose() * error;
+        if (k > 0) {
+          diagonal[k - 1] += normal.block<3, 3>(0, 0);
+          gradient[k - 1] += rhs.head<3>();
+        }
+        if (k < L) {
+          diagonal[k] += normal.block<3, 3>(3, 3);
+          gradient[k] += rhs.tail<3>();
+          if (k > 0) upper[k - 1] += normal.block<3, 3>(0, 3);
+        }
+      }
+      // Block Thomas: eliminate forwards, substitute backwards.
+      for (std::size_t j = 1; j < L; ++j) {
+        const Mat3 factor = upper[j - 1].transpose() * diagonal[j - 1].inverse();
+        diagonal[j] -= factor * upper[j - 1];
+        gradient[j] -= factor * gradient[j - 1];
+      }
+      std::vector<Vec3> delta(L);
+      double largest = 0.0;
+      for (std::size_t j = L; j-- > 0;) {
+        const Vec3 rhs = j + 1 < L ? Vec3(gradient[j] - upper[j] * delta[j + 1]) : gradient[j];
+        delta[j] = diagonal[j].inverse() * rhs;
+        largest = std::max(largest, delta[j].cwiseAbs().maxCoeff());
+      }
+      for (std::size_t j = 0; j < L; ++j) boundaries[j] += delta[j];
+      if (!(largest > 1e-12)) break;
+    }
+  }
+
+ private:
+  std::vector<Eigen::MatrixXd> information_;
+  std::vector<Eigen::VectorXd> means_;
+  std::vector<std::vector<Vec2>> features_;
+};
+
+struct BuiltNode {
+  std::shared_ptr<const GaussianMap> map;
+  std::vector<TentativeFeature> tentative;
+};
+
+// One pass over the tree: every join redone from the leaves, ⊕ linearised at `point`.
+class TreePass {
+ public:
+  TreePass(const JoinTree& tree, const std::vector<BuiltNode>& leaves,
+           std::shared_ptr<const GaussianMap> current, const JoinOptions& options,
+           const GlobalEstimate& point)
+      : tree_(tree), leaves_(leaves), current_(std::move(current)), options_(options), point_(point) {}
+
+  // DCSlam::estimate()'s fold: each node of the stack, top first, joined with everything after it.
+  GaussianMap fold(const std::vector<TreeSpan>& stack) const {
+    if (stack.empty()) return *current_;
+    std::shared_ptr<const GaussianMap> joined = current_;
+    for (auto node = stack.rbegin();; ++node) {
+      const BuiltNode first = build(*node);
+      MapJoin join(first.map, joined, options_for(*node, tree_.num_leaves(), *first.map, *joined));
+      join.finish();
+      GaussianMap result = join.take_result();
+      if (node + 1 == stack.rend()) return result;
+      joined = std::make_shared<const GaussianMap>(std::move(result));
+    }
+  }
+
+ private:
+  BuiltNode build(const TreeSpan& node) const {
+    if (node.leaves == 1) return leaves_[static_cast<std::size_t>(node.first_leaf)];
+    const std::int64_t left_count = tree_.left_leaves(node);
+    const TreeSpan left{node.first_leaf, left_count};
+    const TreeSpan right{node.first_leaf + left_count, node.leaves - left_count};
+    const BuiltNode first = build(left);
+    const BuiltNode second = build(right);
+    MapJoin join(first.map, second.map, options_for(left, right.last_leaf(), *first.map, *second.map),
+                 last_chance(*first.map, first.tentative, node.first_leaf, node.last_leaf()),
+                 last_chance(*second.map, second.tentative, node.first_leaf, node.last_leaf()));
+    join.finish();
+    BuiltNode built;
+    built.map = std::make_shared<const GaussianMap>(join.take_result());
+    built.tentative = joined_tentative(first.tentative, second.tentative, join, node.first_leaf, node.last_leaf());
+    return built;
+  }
+
+  // Pose of the base of the node starting at `first_leaf`, and of the robot of the node ending
+  // at `last_leaf` (num_leaves(): the open local map), in the global frame.
+  Vec3 base_pose(std::int64_t first_leaf) const {
+    return first_leaf == 0 ? Vec3::Zero() : point_.pose(tree_.leaf(first_leaf - 1).robot_id);
+  }
+  Vec3 robot_pose(std::int64_t last_leaf) const {
+    return last_leaf == tree_.num_leaves() ? point_.robot() : point_.pose(tree_.leaf(last_leaf).robot_id);
+  }
+
+  // The join of node `left` (map `first`) with the map `second` of the leaves after it up to
+  // `second_last_leaf`: pairs by id, R1 kept, ⊕ linearised at the global point.
+  JoinOptions options_for(const TreeSpan& left, std::int64_t second_last_leaf, const GaussianMap& first,
+                          const GaussianMap& second) const {
+    JoinOptions options = options_;
+    options.association = JoinAssociation::Known;
+    options.oracle = nullptr;
+    options.keep_first_robot = true;
+    options.first_robot_id = tree_.leaf(left.last_leaf()).robot_id;
+    // R1 in m1's base, and m2's elements in m2's base (R1), where the global point puts them.
+    const Vec3 first_robot = robot_pose(left.last_leaf());
+    auto linearisation = std::make_shared<JoinLinearisation>();
+    linearisation->first_robot = between(base_pose(left.first_leaf), first_robot);
+    linearisation->first_robot.z() = nearest_turn(linearisation->first_robot.z(), first.robot().z());
+    Eigen::VectorXd& x = linearisation->second_x;
+    x = second.x();
+    const auto set_pose = [&](Index offset, const Vec3& global) {
+      Vec3 local = between(first_robot, global);
+      local.z() = nearest_turn(local.z(), x(offset + 2));
+      x.segment<3>(offset) = local;
+    };
+    set_pose(0, robot_pose(second_last_leaf));
+    for (Index j = 0; j < second.num_features(); ++j) {
+      // A feature the result does not hold (a tentative one dropped later) stays at its own
+      // mean: it is marginalised out unconstrained, so where ⊕ is linearised for it does not
+      // change the other elements.
+      const Vec2* global = point_.feature(second.ids()[static_cast<std::size_t>(j)]);
+      if (global != nullptr) x.segment<2>(GaussianMap::feature_offset(j)) = inverse_transform_point(first_robot, *global);
+    }
+    for (Index q = 0; q < second.num_poses(); ++q) {
+      set_pose(second.pose_offset(q), point_.pose(second.pose_ids()[static_cast<std::size_t>(q)]));
+    }
+    options.linearisation = std::move(linearisation);
+    return options;
+  }
+
+  const JoinTree& tree_;
+  const std::vector<BuiltNode>& leaves_;
+  std::shared_ptr<const GaussianMap> current_;
+  JoinOptions options_;
+  const GlobalEstimate& point_;
+};
+
+}  // namespace
+
+GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const GaussianMap& current,
+                                  const std::function<std::int64_t(std::int64_t)>& final_id,
+                                  const GaussianMap& start, const JoinOptions& options, int max_passes,
+                                  double tolerance, RelinearisationReport* report) const {
+  if (max_passes < 1) throw std::logic_error("JoinTree::relinearise: max_passes must be >= 1");
+  const auto relabel = [&](std::int64_t id) {
+    const std::int64_t resolved = final_id(id);
+    return resolved < 0 ? id : resolved;
+  };
+  const auto relabelled = [&](const GaussianMap& map) {
+    auto copy = std::make_shared<GaussianMap>(map);
+    for (std::int64_t& id : copy->ids()) id = relabel(id);
+    return std::shared_ptr<const GaussianMap>(std::move(copy));
+  };
+  std::vector<BuiltNode> leaves;
+  leaves.reserve(leaves_.size());
+  for (const TreeLeaf& leaf : leaves_) {
+    BuiltNode built{relabelled(*leaf.map), leaf.tentative};
+    for (TentativeFeature& feature : built.tentative) feature.id = relabel(feature.id);
+    leaves.push_back(std::move(built));
+  }
+  const std::shared_ptr<const GaussianMap> open_map = relabelled(current);
+
+  // The first point: the map as the tree made it, with the local-map boundaries that best
+  // explain the local maps given that map (BoundaryFit), started from each local map's rigid
+  // fit to the map (or, with fewer than two mapped features, the previous boundary moved by
+  // the previous local map's robot). Computed also where the map holds the boundaries
+  // (keep_local_map_poses), so that asking for them does not move the map.
+  GlobalEstimate point(start, false);
+  std::vector<const GaussianMap*> maps;
+  for (const BuiltNode& leaf : leaves) maps.push_back(leaf.map.get());
+  maps.push_back(open_map.get());
+  std::vector<std::int64_t> boundary_ids;
+  std::vector<Vec3> boundaries;
+  Vec3 boundary = Vec3::Zero();
+  for (std::int64_t k = 1; k <= num_leaves(); ++k) {
+    Vec3 fitted;
+    const Vec3 moved = compose(boundary, maps[static_cast<std::size_t>(k - 1)]->robot());
+    boundary = fit_base(*maps[static_cast<std::size_t>(k)], point, fitted) ? fitted : moved;
+    boundaries.push_back(boundary);
+    boundary_ids.push_back(leaf(k - 1).robot_id);
+  }
+  BoundaryFit(maps, point).solve(boundaries, start.robot(), kBoundarySteps);
+  // A heading no noise has touched (zero variance in every local map so far: odometry with a
+  // known heading) is known exactly, and the covariance the pass computes depends on it to
+  // first order: it is set exactly rather than fitted (to ~1e-10 rad under the fit's floor).
+  double heading = 0.0;
+  for (std::size_t j = 0; j < boundaries.size() && maps[j]->P()(2, 2) == 0.0; ++j) {
+    heading += maps[j]->robot().z();
+    boundaries[j].z() = nearest_turn(heading, boundaries[j].z());
+  }
+  for (std::size_t j = 0; j < boundaries.size(); ++j) point.set_pose(boundary_ids[j], boundaries[j]);
+
+  RelinearisationReport done;
+  GaussianMap result;
+  for (int pass = 0; pass < max_passes; ++pass) {
+    GaussianMap next = TreePass(*this, leaves, open_map, options, point).fold(stack);
+    done.last_step = largest_change(pass == 0 ? start : result, next);
+    ++done.passes;
+    result = std::move(next);
+    if (done.last_step <= tolerance || pass + 1 == max_passes) break;
+    point = GlobalEstimate(result);
+  }
+  if (report != nullptr) *report = done;
+  return result;
+}
+
+}  // namespace dcslam

@@ -1,0 +1,43 @@
+#pragma once
+// Two features of one map that stand for one landmark (a duplicate: its first measurement
+// after a gate failure started a second feature) are merged by imposing f_a = f_b exactly, the
+// constraint a D&C join imposes on a matched pair, and marginalising f_b. The tests that decide
+// when to merge live in EkfSlam (docs/data_association.md, "Duplicated features").
+#include <cstdint>
+#include <functional>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "dcslam/core/gaussian_map.hpp"
+
+namespace dcslam {
+
+// Mahalanobis distance^2 of f_a - f_b under its covariance P_aa + P_bb - P_ab - P_ba; infinity
+// when that covariance is not positive definite (the two are already one).
+double feature_difference_distance_sq(const GaussianMap& map, Eigen::Index a, Eigen::Index b);
+
+// The noise-free EKF update with h = f_a - f_b = 0: K = P H' S^-1 with P H' = P[:, a] - P[:, b]
+// and S = P_aa + P_bb - P_ab - P_ba; x <- x - K (f_a - f_b), P <- P - K S K'. Afterwards f_b
+// equals f_a and their rows of P coincide, so deleting f_b is the exact marginal. O(n^2).
+// Returns false, leaving the map unchanged, when S is not positive definite.
+bool impose_equal_features(GaussianMap& map, Eigen::Index a, Eigen::Index b);
+
+// Whether features a and b of a map may stand for one landmark (e.g. they were never paired in
+// one scan, or never in one local map): what the map's covariance cannot tell.
+using MayBeOneLandmark = std::function<bool(Eigen::Index, Eigen::Index)>;
+
+// The one feature j != k of `map` that k may be a duplicate of: within `radius` of it, f_k - f_j
+// compatible with 0 (D^2 <= gate) and may_be_one(k, j); -1 when there is none or more than one
+// (no ambiguity to resolve, which is what a joint test would be for). O(n).
+Eigen::Index merge_partner(const GaussianMap& map, Eigen::Index k, double radius, double gate,
+                           const MayBeOneLandmark& may_be_one);
+
+// Merges every pair of features that are each other's merge_partner(), keeping the one with
+// the smaller id, in rounds until a round merges nothing (at most max_rounds). Returns
+// (merged id, kept id) for each merge. O(n^2) a round for the search, O(n^2) a merge.
+std::vector<std::pair<std::int64_t, std::int64_t>> merge_duplicate_features(
+    GaussianMap& map, double radius, double gate, const MayBeOneLandmark& may_be_one, int max_rounds = 10);
+
+}  // namespace dcslam

@@ -1,0 +1,77 @@
+#pragma once
+// The configuration of a SLAM run (docs/api.md's SlamConfig), as a plain struct. The Python
+// dataclass dcslam.SlamConfig mirrors it field for field.
+#include <cstdint>
+#include <string>
+
+#include "dcslam/core/geometry.hpp"
+#include "dcslam/core/observation.hpp"
+
+namespace dcslam {
+
+// Data association inside a local map (or the whole EKF map).
+enum class Association { Known, NearestNeighbour, Jcbb };
+// Data association between the two maps of a D&C join.
+enum class JoinAssociation { Known, Jcbb, Rjc };
+
+Association parse_association(const std::string& name, const char* field);
+JoinAssociation parse_join_association(const std::string& name, const char* field);
+const char* to_string(Association association);
+const char* to_string(JoinAssociation association);
+
+struct SlamConfig {
+  ObservationModel observation = ObservationModel::RangeBearing;
+  Vec3 sensor_offset = Vec3::Zero();
+  Association association = Association::Jcbb;
+  double gate_confidence = 0.99;
+  // "jcbb": expected measurements per scan and per m^2 (in the plane) that no mapped feature
+  // explains, clutter and first sightings together. 0 = JCBB returns the hypothesis with most
+  // pairings; > 0 = the one with the highest likelihood ratio against leaving measurements
+  // unexplained (JcbbLikelihood), which declines pairings less likely than that density.
+  double unexplained_density = 0.0;
+  // "jcbb": interpretation-tree nodes per scan before JCBB returns its best hypothesis so far.
+  std::int64_t jcbb_max_nodes = 20000;
+  // Spurious measurements ("nn"/"jcbb" only; docs/data_association.md): a new feature stays
+  // tentative until it has been seen min_sightings times (1 = confirmed at birth, policy off);
+  // a tentative feature not seen for more than tentative_window steps is removed.
+  int min_sightings = 2;
+  int tentative_window = 5;
+  // "nn"/"jcbb": two features of one map are merged (the constraint f_a = f_b imposed as an
+  // exact update, then f_b marginalised) when they were never paired in one scan, lie within
+  // this distance (m), and each is the other's only feature compatible with it at
+  // gate_confidence (docs/data_association.md, "Duplicated features"). 0 = never merge.
+  double merge_radius = 2.0;
+  int local_map_features = 30;
+  JoinAssociation join_association = JoinAssociation::Rjc;
+  int rjc_b = 4;
+  double rjc_p_good = 0.8;
+  double rjc_p_fail = 0.01;
+  // D&C: linearisation points of each join's constraint update (iterated EKF; 1 = the
+  // one-shot join linearised at the prior means).
+  int join_iterations = 10;
+  // D&C joins' compatibility tests only: a per-feature position error (m) that repeated
+  // sightings do not average out (on real data, e.g. a trunk centre seen from different
+  // sides), added as join_feature_sigma^2 I to each feature of a tested pair. The update still
+  // imposes the pairs exactly. 0: the maps' covariances alone (exact in simulation).
+  double join_feature_sigma = 0.0;
+  // D&C: Gauss–Newton passes that estimate() makes through the whole tree of joins, redoing
+  // every join from the kept local maps linearised at the previous pass's map (join_tree.hpp).
+  // 0 (the paper's D&C; the local maps are not kept) by measurement: the optimum the passes
+  // reach is nearer the batch optimum but not always nearer the truth
+  // (docs/divide_and_conquer.md).
+  int tree_relinearisation = 0;
+  std::uint64_t seed = 0;
+  bool amortize = true;
+  // D&C: run joins on a background worker thread instead (the multi-core form of the
+  // amortized schedule); results are bitwise identical to immediate and amortized joins.
+  bool threaded_joins = false;
+  // D&C: keep the robot pose at every local-map boundary in the joined map
+  // (docs/design.md §4.5), as past poses with their full covariance (Estimate::past_poses);
+  // the EKF keeps none.
+  bool keep_local_map_poses = false;
+
+  // Throws InvalidArgument naming the first field that is out of range.
+  void validate() const;
+};
+
+}  // namespace dcslam

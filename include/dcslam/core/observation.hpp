@@ -1,0 +1,28 @@
+#pragma once
+// Observation models of docs/design.md §2: a point feature seen from a sensor mounted at a fixed
+// offset x_RS on the robot, either as range–bearing (r, beta) or as a Cartesian point (x, y)
+// in the sensor frame. Each has its Jacobians and an inverse (feature initialisation).
+#include "dcslam/core/geometry.hpp"
+
+namespace dcslam {
+
+enum class ObservationModel { RangeBearing, Point };
+
+// Parses "range_bearing" | "point"; throws InvalidArgument naming `field` otherwise.
+ObservationModel parse_observation_model(const std::string& name, const char* field);
+const char* to_string(ObservationModel model);
+
+// z = h(x_R, f): the measurement predicted for feature f (base frame) from robot pose x_R.
+// J_robot = dh/dx_R (2x3), J_feature = dh/df (2x2).
+Vec2 observe(ObservationModel model, const Vec3& sensor_offset, const Vec3& robot,
+             const Vec2& feature, Mat23* J_robot = nullptr, Mat2* J_feature = nullptr);
+
+// f = g(x_R, z): the feature position (base frame) implied by measurement z.
+// J_robot = dg/dx_R (2x3), J_z = dg/dz (2x2).
+Vec2 inverse_observe(ObservationModel model, const Vec3& sensor_offset, const Vec3& robot,
+                     const Vec2& z, Mat23* J_robot = nullptr, Mat2* J_z = nullptr);
+
+// z - z_hat, with the bearing component wrapped for range–bearing.
+Vec2 innovation(ObservationModel model, const Vec2& z, const Vec2& z_hat);
+
+}  // namespace dcslam

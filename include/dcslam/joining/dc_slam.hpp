@@ -1,0 +1,203 @@
+#pragma once
+// Divide and Conquer SLAM (docs/design.md §5; Paz et al. 2007, Algorithm 2). Local maps are built
+// with the sparse-aware EKF, closed at `local_map_features` features, and joined as a binary
+// tree in post-order with a stack. Joins run in one of three ways with bitwise the same
+// result:
+//  - immediate: a join runs as soon as its two inputs exist;
+//  - amortized (`amortize`): joins are queued and every step spends a work budget on them, so
+//    that each step costs O(n) (the paper's Fig. 3, bottom row);
+//  - threaded (`threaded_joins`): a worker thread runs the queued joins while the front end
+//    keeps mapping.
+//
+// Decisions (docs/divide_and_conquer.md): the stack compares map sizes by the number of local
+// maps they hold (a binary counter, deterministic whatever the join timing; equal to the
+// paper's feature count for exploration), and the amortized budget of a step is
+// Σ remaining_work / steps_left over the queued joins, where a join's deadline is half the
+// time until its result is next needed.
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <exception>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <unordered_map>
+#include <vector>
+
+#include "dcslam/core/config.hpp"
+#include "dcslam/estimation/ekf_slam.hpp"
+#include "dcslam/joining/join_tree.hpp"
+#include "dcslam/joining/map_joining.hpp"
+#include "dcslam/core/slam_filter.hpp"
+#include "dcslam/joining/tentative_features.hpp"
+
+namespace dcslam {
+
+// Feature id -> the local maps (leaves, sorted) its measurements came from. Two features that
+// share a leaf are distinct landmarks (the local EKF kept them apart); D&C's duplicate merge
+// only considers features whose leaves are disjoint.
+using LeafSets = std::unordered_map<std::int64_t, std::vector<std::int64_t>>;
+
+struct JoinEvent {
+  int index = 0;         // joins in creation order
+  int leaves = 0;        // local maps in the joined map
+  std::int64_t step_created = 0;
+  std::int64_t step_finished = -1;  // -1 while pending
+  JoinReport report;
+  JoinPairingRecord pairing;  // empty while pending
+};
+
+class DCSlam : public SlamFilter {
+ public:
+  explicit DCSlam(const SlamConfig& config);
+  ~DCSlam() override;
+  DCSlam(const DCSlam&) = delete;
+  DCSlam& operator=(const DCSlam&) = delete;
+
+  void predict(const Vec3& u, const Mat3& Q) override;
+  std::vector<std::int64_t> update(const MeasurementsRef& z, const std::vector<Mat2>& R,
+                                   const std::vector<std::int64_t>* landmark_ids) override;
+  Estimate estimate() const override;
+  // A research instrument (JoinOracle in map_joining.hpp): every join, the real ones and the
+  // estimate's, corrects its association with the truth. Only before the first predict().
+  void set_join_oracle(std::shared_ptr<const JoinOracle> oracle);
+  Vec3 pose() const override;
+  std::vector<std::int64_t> resolve(const std::vector<std::int64_t>& ids) const override;
+  const RunStats& stats() const override;
+
+  // The local maps as they closed, then the open one (its robot_id -1), each in its own base
+  // frame with the ids it gave its features: what the re-linearised tree starts from. Kept
+  // only with tree_relinearisation > 0 (else empty).
+  std::vector<TreeLeaf> tree_leaves() const;
+  // Join events so far (pending ones have step_finished == -1).
+  std::vector<JoinEvent> joins() const;
+  // The stack's shape, bottom first: local maps held by each map, and its feature count
+  // (expected count for a pending join: the sum of its inputs).
+  std::vector<std::pair<int, std::int64_t>> stack_shape() const;
+  // What each join of the last estimate()'s final fold saw and decided (the stack's maps,
+  // top first, each joined with everything after it), as in JoinEvent::pairing: for diagnosis.
+  std::vector<JoinPairingRecord> fold_pairings() const;
+  // Blocks until every queued join is done (threaded mode) or runs them (other modes).
+  void finish_joins();
+  const SlamConfig& config() const override { return config_; }
+  // The local map being built (base: the robot pose where it started).
+  const EkfSlam& local_map() const { return *local_; }
+
+ private:
+  friend struct CheckpointAccess;  // checkpoint.cpp saves and restores the state below
+  struct JoinTask;
+  struct Node {
+    int leaves = 1;
+    std::int64_t first_leaf = 0;  // the node holds local maps first_leaf .. first_leaf+leaves-1
+    std::int64_t expected_features = 0;
+    std::int64_t expected_poses = 0;  // past poses (keep_local_map_poses)
+    std::int64_t expected_dim() const {
+      return GaussianMap::kRobotDim + GaussianMap::kFeatureDim * expected_features +
+             GaussianMap::kPoseDim * expected_poses;
+    }
+    // Id of the node's robot as a past pose: the predict() calls made before its last local
+    // map closed.
+    std::int64_t robot_id = 0;
+    std::shared_ptr<const GaussianMap> map;  // set once complete
+    std::vector<TentativeFeature> tentative;  // set with `map`
+    std::shared_ptr<JoinTask> task;          // set while pending
+  };
+  struct JoinTask {
+    int index = 0;
+    std::shared_ptr<Node> left, right;
+    // The node this join completes. Weak: the node owns the task while the join is pending,
+    // and a strong link back would keep joins still queued at destruction alive forever.
+    std::weak_ptr<Node> result;
+    std::unique_ptr<MapJoin> join;
+    std::int64_t deadline_step = 0;
+    // The budget of every advance() so far: a checkpoint redoes them on load.
+    std::vector<std::int64_t> budgets;
+  };
+
+  void close_local_map();
+  void push_and_merge(std::shared_ptr<Node> node);
+  void run_amortized_budget();
+  // Advances `task` by up to `budget`; returns work done. Completes the node when finished.
+  std::int64_t work_on(JoinTask& task, std::int64_t budget);
+  // A join that threw (a covariance that is not positive definite, say) leaves its task half
+  // done and the tree without its result: the failure is recorded and named (the first one
+  // stays), and raised as InvalidArgument by this and every later call, on whichever thread
+  // the join ran, instead of escaping a worker thread (which ends the process). Returns the
+  // recorded message.
+  std::string record_join_failure(const JoinTask& task, const std::exception& error);
+  void throw_if_a_join_failed() const;
+  void complete(JoinTask& task);
+  void worker_loop();
+  // Options of join `index`, whose first map's robot has pose id `first_robot_id`.
+  JoinOptions join_options(int index, std::int64_t first_robot_id) const;
+  struct NodeMap {
+    std::shared_ptr<const GaussianMap> map;
+    std::vector<TentativeFeature> tentative;
+  };
+  // The join of two adjacent nodes, with the tentative features whose last chance it is.
+  std::unique_ptr<MapJoin> make_join(const NodeMap& first, const NodeMap& second,
+                                     const Node& left, const Node& right, int index) const;
+  // A node as it stood when estimate() began: its map if complete, else the inputs of its
+  // pending join. A join the worker completes during the estimate must not be seen: its
+  // merges would be missing from the leaf sets estimate() copied at the start.
+  struct FrozenNode {
+    std::shared_ptr<Node> node;  // for its fixed fields (leaves, robot id)
+    NodeMap map;                 // map.map null while pending
+    std::shared_ptr<FrozenNode> left, right;
+    int index = 0;
+  };
+  std::shared_ptr<FrozenNode> freeze(const std::shared_ptr<Node>& node) const;  // mutex_ held
+  // The map of a frozen node, computing pending joins on copies (never touching the real
+  // tasks); the merges those joins make are added to `aliases` and `leaves`.
+  NodeMap materialize(const FrozenNode& node, IdAliases& aliases, LeafSets& leaves) const;
+  // Merges the duplicates the joins left in the estimate's `map` as the EKF merges its own
+  // (each the other's only compatible feature within merge_radius), with "from disjoint local
+  // maps" standing in for "never seen in one scan"; records the merges in `aliases` and
+  // `leaves`. Off with merge_radius 0 or known association.
+  void merge_duplicates(GaussianMap& map, IdAliases& aliases, LeafSets& leaves) const;
+  // Follows merged_into_, then the last estimate()'s aliases while they are current.
+  std::int64_t resolve_one(std::int64_t id) const;
+  Vec3 node_robot(const Node& node) const;
+  void begin_step();
+  void end_step(double seconds);
+  void forget_estimate_aliases();
+
+  SlamConfig config_;
+  std::unique_ptr<EkfSlam> local_;
+  std::int64_t local_map_steps_ = 0;
+  // Written by the front end's every step, read by a join worker when a join completes.
+  std::atomic<std::int64_t> steps_{0};
+  std::int64_t predictions_ = 0;
+  std::int64_t closed_local_maps_ = 0;
+  std::int64_t steps_in_closed_maps_ = 0;
+  int joins_created_ = 0;
+
+  mutable std::mutex mutex_;  // guards the stack, tasks, events and aliases (threaded mode)
+  std::condition_variable work_ready_, work_done_;
+  std::vector<std::shared_ptr<Node>> stack_;
+  std::deque<std::shared_ptr<JoinTask>> queue_;
+  std::vector<JoinEvent> events_;
+  IdAliases merged_into_;
+  LeafSets leaves_of_;  // of the features of the closed local maps and of the joins done
+  std::shared_ptr<const JoinOracle> join_oracle_;
+  JoinTree tree_;  // with tree_relinearisation > 0; front end only
+  // Counters of the closed local maps' filters (see kLocalCounters in dc_slam.cpp).
+  std::map<std::string, double> closed_maps_counters_;
+  // The merges of the joins the last estimate() made on copies: resolve() follows them until
+  // the next predict() or update(), so that ids resolve to that estimate's landmarks.
+  mutable IdAliases estimate_aliases_;
+  mutable std::vector<JoinPairingRecord> fold_pairings_;  // of the last estimate()
+  bool stopping_ = false;
+  bool worker_busy_ = false;
+  // Gauss–Newton passes of the last estimate()'s re-linearised tree, and its last step.
+  mutable RelinearisationReport relinearisation_;  // guarded by mutex_
+  std::string join_failure_;  // empty unless a join failed (record_join_failure())
+  std::thread worker_;
+
+  mutable RunStats stats_;  // counters are refreshed by stats()
+};
+
+}  // namespace dcslam

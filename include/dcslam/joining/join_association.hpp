@@ -1,0 +1,103 @@
+#pragma once
+// Data association between the two maps of a D&C join without ids (docs/design.md §6): candidate
+// pairs through a spatial hash over m1's features, individual compatibility with the pair
+// covariance P_ii + P_jj - P_ij - P_ji, then JCBB over the whole overlap ("jcbb") or RJC
+// (the paper's Algorithm 3, "rjc"). The individual gate only prunes, at a tenth of the
+// decision gate's tail (0.999 for gate_confidence 0.99; the overlap counts features with a
+// candidate at that level); pairs are accepted by the joint or conditional test at
+// gate_confidence.
+#include <cstdint>
+#include <optional>
+#include <utility>
+#include <vector>
+
+#include "dcslam/association/jcbb.hpp"
+#include "dcslam/joining/map_joining.hpp"
+#include "dcslam/association/rjc.hpp"
+#include "dcslam/core/spatial_hash.hpp"
+
+namespace dcslam {
+
+// Measurement = feature j of the moved m2, feature = feature i of m1; the innovation of the
+// pairing is f'_j - f_i, whose covariance is P_ii + P_jj - P_ij - P_ji in the stacked map,
+// plus feature_sigma^2 I for each feature the two pairings share (each feature carries its
+// own independent error of that size: SlamConfig::join_feature_sigma).
+class JoinPairingModel : public PairingModel {
+ public:
+  explicit JoinPairingModel(const JoinFrame& frame, double feature_sigma = 0.0)
+      : frame_(frame), feature_variance_(feature_sigma * feature_sigma) {}
+  Vec2 innovation(const Pairing& p) const override;
+  Mat2 covariance(const Pairing& a, const Pairing& b) const override;
+
+ private:
+  const JoinFrame& frame_;
+  double feature_variance_;
+};
+
+struct JoinAssociationResult {
+  std::vector<std::pair<Eigen::Index, Eigen::Index>> pairs;  // (i in m1, j in m2)
+  int overlap = 0;
+  int tries = 0;
+  std::vector<JoinTruthAudit> truth_audit;  // only with a JoinOracle
+  // With a JoinOracle: the association's own pairs, before the oracle corrected them.
+  std::vector<std::pair<Eigen::Index, Eigen::Index>> own_pairs;
+};
+
+JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options);
+
+// associate_maps() as resumable work, so that an amortized join spreads its association over
+// many steps: advance() does at least one step (the search radii and the spatial hash over
+// m1, the candidates of one m2 feature, one step of RJC's RjcSearch, or a whole JCBB, which
+// only runs on small overlaps, where every RJC try failed (node-bounded) or in "jcbb" mode) and
+// stops once `budget` units of eight multiply-adds are spent. The steps are the computation
+// associate_maps() does, in the same order, so the result is bitwise the same however the work
+// is sliced. `frame` must outlive the associator, which is neither copied nor moved.
+class JoinAssociator {
+ public:
+  JoinAssociator(const JoinFrame& frame, const JoinOptions& options);
+  JoinAssociator(const JoinAssociator&) = delete;
+  JoinAssociator& operator=(const JoinAssociator&) = delete;
+
+  std::int64_t advance(std::int64_t budget);
+  bool done() const { return stage_ == Stage::Done; }
+  // Work left in the units of advance(). The decision's share is only known once the overlap
+  // is (counted as 0 before, as the join counts the constraints' before association).
+  std::int64_t remaining_work() const;
+  // The overlap (features of m2 with a candidate, at least the pairings to come): counted
+  // once the candidates are known, extrapolated over m2 while they are searched, 0 before.
+  std::int64_t expected_overlap() const;
+  // Valid once done().
+  const JoinAssociationResult& result() const { return result_; }
+
+ private:
+  enum class Stage { Prepare, Candidates, Rjc, Jcbb, Done };
+  std::int64_t prepare();
+  std::int64_t candidates_of_next();
+  std::int64_t advance_rjc(std::int64_t budget);
+  std::int64_t run_jcbb();
+  void finish(std::vector<int> feature_of);
+  // JoinOracle: its pairing (per m2 feature, its m1 partner or kStar), the audit of that
+  // pairing, and the decision corrected with it.
+  std::vector<int> oracle_pairing() const;
+  // Whether m1's feature `first` (or kStar) is among the candidates of m2's feature `second`.
+  bool is_candidate(std::size_t second, int first) const;
+  void audit_oracle(const std::vector<int>& truth);
+  void apply_oracle(const std::vector<int>& truth, std::vector<int>& feature_of) const;
+
+  const JoinFrame& frame_;
+  JoinOptions options_;
+  JoinPairingModel model_;
+  Stage stage_ = Stage::Prepare;
+  JoinAssociationResult result_;
+  double pruning_gate_ = 0.0;  // the individual gate, chi2(2) at the pruning confidence
+  double gate_radius_ = 0.0;
+  double sigma_first_ = 0.0;
+  std::vector<double> sigma_second_;
+  std::optional<SpatialHash> hash_;
+  std::vector<int> nearby_;
+  CandidateLists candidates_;
+  Eigen::Index next_second_ = 0;  // next m2 feature whose candidates are searched
+  std::optional<RjcSearch> rjc_;
+};
+
+}  // namespace dcslam

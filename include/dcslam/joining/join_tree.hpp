@@ -1,0 +1,84 @@
+#pragma once
+// D&C's tree of joins, kept so that every join can be redone from the local maps
+// (docs/divide_and_conquer.md, "Re-linearised joins").
+//
+// A join linearises ⊕ where its two inputs put the robot and the second map's elements. A
+// subtree mapped without the rest drifts, so its Gaussian is linearised at the drifted
+// estimate, and a later join can only correct it linearly. Here the leaves (each local map as
+// it closed: mean and covariance in its own base frame, O(p^2) each, O(n) leaves) and the
+// tree's shape are kept, and relinearise() redoes every join from the leaves with ⊕
+// linearised at one global estimate. Every join is exact in the linear-Gaussian case, so
+// such a pass solves the least-squares problem "each local map is a measurement of the
+// global map" linearised at that estimate: it is one Gauss–Newton step of the
+// submap-joining problem (Huang, Wang and Dissanayake's I-SLSJF; Zhao et al.'s Linear SLAM),
+// taken through D&C's own tree so that the result keeps the full covariance. Repeated passes
+// converge to that problem's optimum.
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <utility>
+#include <vector>
+
+#include "dcslam/core/gaussian_map.hpp"
+#include "dcslam/joining/map_joining.hpp"
+#include "dcslam/joining/tentative_features.hpp"
+
+namespace dcslam {
+
+struct TreeLeaf {
+  std::shared_ptr<const GaussianMap> map;  // as it closed: base frame, feature ids
+  std::vector<TentativeFeature> tentative;
+  std::int64_t robot_id = 0;  // pose id of its robot, the next leaf's base
+};
+
+// A node of the tree: the leaves first_leaf .. first_leaf + leaves - 1.
+struct TreeSpan {
+  std::int64_t first_leaf = 0;
+  std::int64_t leaves = 1;
+  std::int64_t last_leaf() const { return first_leaf + leaves - 1; }
+};
+
+struct RelinearisationReport {
+  int passes = 0;          // Gauss–Newton passes through the tree
+  double last_step = 0.0;  // largest change of a mean in the last pass (m or rad)
+};
+
+class JoinTree {
+ public:
+  void add_leaf(TreeLeaf leaf);
+  // A join of the adjacent nodes `left` and `right` (right.first_leaf = left's last + 1).
+  void add_join(const TreeSpan& left, const TreeSpan& right);
+  std::int64_t num_leaves() const { return static_cast<std::int64_t>(leaves_.size()); }
+  const TreeLeaf& leaf(std::int64_t k) const { return leaves_[static_cast<std::size_t>(k)]; }
+  // Local maps in the left input of the join that made `node`.
+  std::int64_t left_leaves(const TreeSpan& node) const;
+  // Every join: (first_leaf, leaves) of the node it made -> local maps in its left input.
+  const std::map<std::pair<std::int64_t, std::int64_t>, std::int64_t>& joins() const { return left_leaves_; }
+
+  // The map that DCSlam::estimate() folds from the nodes `stack` (bottom first, covering the
+  // leaves in order) and `current` (the open local map, based at the last leaf's robot), with
+  // every join redone, re-linearised at the previous pass's result, until no mean moves by
+  // more than `tolerance` (m or rad) or `max_passes` (>= 1) passes are done. The first pass
+  // linearises at `start`, the map as the tree made it (ids as `final_id` gives them), with
+  // each local-map boundary placed where its local map's features fit `start` best (whether
+  // `start` holds the boundaries or not).
+  //
+  // The joins pair features by `final_id` (each leaf feature's id once every merge of the run
+  // is followed: the joins', the fold's and the duplicate merge's; ids it maps to -1, dropped
+  // tentative features, keep their own), so the pairs are those the run decided, each made at
+  // the lowest join where its two features meet. `options` gives the constraint update's
+  // settings; association, linearisation and the past poses are set here. The result keeps
+  // every local-map boundary as a past pose (the linearisation points need them).
+  GaussianMap relinearise(const std::vector<TreeSpan>& stack, const GaussianMap& current,
+                          const std::function<std::int64_t(std::int64_t)>& final_id,
+                          const GaussianMap& start, const JoinOptions& options, int max_passes,
+                          double tolerance, RelinearisationReport* report = nullptr) const;
+
+ private:
+  std::vector<TreeLeaf> leaves_;
+  // (first_leaf, leaves) of each joined node -> local maps in its left input.
+  std::map<std::pair<std::int64_t, std::int64_t>, std::int64_t> left_leaves_;
+};
+
+}  // namespace dcslam
