@@ -33,7 +33,10 @@ def to_core_struct(values: Any, core: Any, name: str) -> Any:
         default = getattr(core, field.name)
         if isinstance(default, bool) and not _is_boolean(value):
             raise ValueError(f"{name}.{field.name}: expected True or False, got {value!r}")
-        if isinstance(default, (int, float)) and not isinstance(default, bool) and _is_boolean(value):
+        numeric = isinstance(default, (int, float)) and not isinstance(default, bool)
+        # An optional number (None by default, as SimulationConfig.side_steps) is told by its annotation.
+        numeric = numeric or (default is None and ("int" in str(field.type) or "float" in str(field.type)))
+        if numeric and _is_boolean(value):
             raise ValueError(f"{name}.{field.name}: expected a number, got {value!r}")
         try:
             setattr(core, field.name, value)

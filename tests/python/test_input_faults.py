@@ -113,6 +113,12 @@ def test_numeric_options_refuse_booleans(field, value):
         dcslam.SlamConfig(**{field: value}).validate()
 
 
+@pytest.mark.parametrize("field", ["side_steps", "num_features", "world_margin"])
+def test_optional_numeric_simulation_options_refuse_booleans(field):
+    with pytest.raises(ValueError, match=f"SimulationConfig.{field}: expected a number, got True"):
+        dcslam.SimulationConfig(**{field: True}).validate()
+
+
 @pytest.mark.parametrize("association", ["jcbb", "nn"])
 def test_joins_by_id_need_ids_inside_local_maps(association):
     config = dcslam.SlamConfig(association=association, join_association="known")
