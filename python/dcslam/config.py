@@ -40,8 +40,12 @@ def to_core_struct(values: Any, core: Any, name: str) -> Any:
             raise ValueError(f"{name}.{field.name}: expected a number, got {value!r}")
         try:
             setattr(core, field.name, value)
-        except TypeError as error:  # wrong Python type for a compiled field
-            raise ValueError(f"{name}.{field.name}: invalid value {value!r} ({error})") from None
+        except TypeError:  # a wrong Python type, or an integer the compiled field cannot hold
+            # pybind11's own message lists every overload over several lines: one short line instead.
+            kind = "None or a number" if default is None else type(default).__name__
+            shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
+            raise ValueError(f"{name}.{field.name}: invalid value {shown} (expected {kind}"
+                             f"{' that the field can hold' if kind != 'str' else ''})") from None
     core.validate()
     return core
 

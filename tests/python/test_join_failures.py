@@ -107,11 +107,12 @@ def test_a_range_of_1e155_is_refused_by_update_and_the_run_goes_on(amortize, thr
 SEEN_TWICE = (9, 13)
 
 
-def run_steps():
+def run_steps(seen_twice=SEEN_TWICE):
     steps = []
     for k in range(40):
-        u = np.array([0.3, 0.0, 0.0])
-        if k in SEEN_TWICE:
+        # Between two sightings in one step apart, the robot stands still.
+        u = np.zeros(3) if k == seen_twice[1] == seen_twice[0] + 1 else np.array([0.3, 0.0, 0.0])
+        if k in seen_twice:
             z, ids = np.array([[1e-300, 0.0]]), [1000]
         elif k % 4 == 1:
             z, ids = np.array([[2.0, 0.4], [2.5, -0.3]])[:1 if k < 4 else 2], [k, k - 4][:1 if k < 4 else 2]
@@ -187,3 +188,33 @@ def test_after_a_failed_join_the_filter_is_one_that_never_saw_the_update_that_qu
     # Threaded, a step's feature count depends on when the worker finished each join.
     for field in ("measurements", "paired", "new_features") + (() if threaded else ("num_features",)):
         assert np.array_equal(getattr(ours, field), getattr(theirs, field)), field
+
+
+@pytest.mark.parametrize("make_filter", [
+    lambda: dcslam.EkfSlam(dcslam.SlamConfig(association="known")),
+    lambda: dcslam.DCSlam(dcslam.SlamConfig(association="known", join_association="known", local_map_features=6)),
+], ids=["ekf", "dc_local_map"])
+def test_an_update_that_fails_midway_is_refused_and_leaves_the_filter_as_it_was(make_filter):
+    # The EKF pairs the second sighting of landmark 1000 (known id), from where it saw it
+    # first: its Jacobians at a predicted range of 1e-300 are infinite and the innovation
+    # covariance NaN, which once went into the map.
+    seen_twice = (9, 10)
+    steps = run_steps(seen_twice)
+    slam = make_filter()
+    refused = []
+    for k, name, call in calls(steps):
+        try:
+            call(slam)
+        except ValueError as error:
+            refused.append(k)
+            assert (k, name) == (seen_twice[1], "update") and "innovation covariance is not finite" in str(error)
+            oracle = make_filter()
+            for _, _, good in calls(steps[:k + 1], skip=[k]):
+                good(oracle)
+            assert bitwise(slam.estimate(), oracle.estimate())
+    assert refused == [seen_twice[1]]
+    oracle = make_filter()
+    for _, _, good in calls(steps, skip=[seen_twice[1]]):
+        good(oracle)
+    assert bitwise(slam.estimate(), oracle.estimate())
+    assert np.all(np.isfinite(slam.estimate().covariance))
