@@ -278,6 +278,9 @@ void EkfSlam::update_paired(const MeasurementsRef& z, const std::vector<Mat2>& R
   if (k == 0) return;
   const Index n = map_.dim();
   const Index rows = 2 * k;
+  // The workspace's size sets the rounding of what is computed in it (checkpoint.cpp): a
+  // refused update puts it back, so that the run goes on as if it had never been called.
+  const Index workspace_rows = PHt_.rows(), workspace_cols = PHt_.cols(), innovation_rows = S_.rows();
   ensure_workspace(n, rows);
   H_robot_.resize(static_cast<std::size_t>(k));
   H_feature_.resize(static_cast<std::size_t>(k));
@@ -319,11 +322,18 @@ void EkfSlam::update_paired(const MeasurementsRef& z, const std::vector<Mat2>& R
     S.block<2, 2>(2 * a, 2 * a) += symmetric_part(covariance_of(R, i));
   }
 
-  // In-place Cholesky S = L L' (reads the lower triangle only).
+  // In-place Cholesky S = L L' (reads the lower triangle only). A measurement at a range that
+  // squares to zero (1e-300) gives infinite Jacobians and a NaN S, which the factorisation
+  // would pass on without failing: refused before it.
+  const bool finite = S.allFinite() && nu.allFinite();
   Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> cholesky(S);
-  if (cholesky.info() != Eigen::Success) {
-    throw InvalidArgument(
-        "update: the innovation covariance is not positive definite (state left unchanged)");
+  if (!finite || cholesky.info() != Eigen::Success) {
+    PHt_.resize(workspace_rows, workspace_cols);
+    S_.resize(innovation_rows, innovation_rows);
+    innovation_.resize(innovation_rows);
+    throw InvalidArgument(std::string("update: the innovation covariance is ") +
+                          (finite ? "not positive definite" : "not finite (a measurement at a range too small?)") +
+                          " (state left unchanged)");
   }
   // W = P H' L^-T and L^-1 nu, both in place: then K nu = W (L^-1 nu) and K S K' = W W'.
   cholesky.matrixU().solveInPlace<Eigen::OnTheRight>(PHt);

@@ -615,7 +615,10 @@ struct CheckpointAccess {
   static void save(Writer& out, const DCSlam& f) {
     std::lock_guard<std::mutex> lock(f.mutex_);
     if (f.join_oracle_) throw InvalidArgument("checkpoint: a DCSlam with a join oracle (a research instrument) is not saved");
-    if (!f.join_failure_.empty()) throw InvalidArgument("checkpoint: this DCSlam cannot go on: " + f.join_failure_);
+    if (!f.join_failure_.empty()) {
+      throw InvalidArgument("checkpoint: " + f.join_failure_ +
+                            "; not saved: the next call to the filter reports it and rolls the filter back");
+    }
     save_config(out, f.config_);
     save(out, *f.local_);
     out.pod(f.local_map_steps_);

@@ -4,6 +4,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <iterator>
 #include <limits>
 #include <unordered_set>
@@ -34,6 +35,12 @@ using Clock = std::chrono::steady_clock;
 double seconds_since(Clock::time_point start) {
   return std::chrono::duration<double>(Clock::now() - start).count();
 }
+
+// Thrown by work_on() once the failure is recorded: the front end's callers roll back and
+// report it (raise_join_failure()); the worker only stops the join.
+struct JoinFailed : InvalidArgument {
+  using InvalidArgument::InvalidArgument;
+};
 
 // A copy whose storage fits exactly: local maps keep capacity headroom while they grow,
 // finished ones do not need it.
@@ -119,7 +126,7 @@ void DCSlam::end_step(double seconds) {
 }
 
 void DCSlam::predict(const Vec3& u, const Mat3& Q) {
-  throw_if_a_join_failed();
+  raise_join_failure_if_any();
   const auto start = Clock::now();
   local_->predict(u, Q);  // validates first: a bad call changes nothing
   forget_estimate_aliases();
@@ -130,8 +137,20 @@ void DCSlam::predict(const Vec3& u, const Mat3& Q) {
 
 std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::vector<Mat2>& R,
                                          const std::vector<std::int64_t>* landmark_ids) {
-  throw_if_a_join_failed();
+  raise_join_failure_if_any();
   const auto start = Clock::now();
+  // An update that closes the local map and so queues a join keeps the local map as it was
+  // for the restore point. A closure needs as many features as local_map_features after the
+  // update, and an update adds at most one feature per measurement: the copy (O(p^2) of the
+  // local map's p) is only made on the last updates of a local map.
+  if (local_->map().num_features() + z.rows() >= config_.local_map_features && !stack_.empty() &&
+      stack_.back()->leaves == 1) {
+    before_update_.local = std::make_unique<EkfSlam>(*local_);
+    before_update_.local_map_steps = local_map_steps_;
+    before_update_.steps = steps_;
+    before_update_.stats_steps = stats_.steps.size();
+    before_update_.last_step = stats_.steps.empty() ? StepStats() : stats_.steps.back();
+  }
   std::vector<std::int64_t> ids = local_->update(z, R, landmark_ids);
   forget_estimate_aliases();
   if (stats_.steps.empty()) begin_step();  // measurements at the first pose, before any motion
@@ -142,13 +161,23 @@ std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::ve
   step.new_features += local_step.new_features;
   step.rejected += local_step.rejected;
   step.association_seconds += local_step.association_seconds;
-  if (local_->map().num_features() >= config_.local_map_features) close_local_map();
-  if (config_.amortize && !config_.threaded_joins) run_amortized_budget();
+  try {
+    if (local_->map().num_features() >= config_.local_map_features) close_local_map();
+    if (config_.amortize && !config_.threaded_joins) run_amortized_budget();
+  } catch (const JoinFailed&) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    raise_join_failure(lock);
+  }
+  before_update_.local.reset();
   end_step(seconds_since(start));
   return ids;
 }
 
 void DCSlam::close_local_map() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (before_update_.local) take_restore_point();
+  }
   {
     // Ids of the tentative features the local map removed as expired resolve to -1 from now on.
     std::lock_guard<std::mutex> lock(mutex_);
@@ -192,6 +221,81 @@ void DCSlam::close_local_map() {
     for (const auto& task : tasks) work_on(*task, std::numeric_limits<std::int64_t>::max());
     queue_.clear();
   }
+}
+
+std::shared_ptr<DCSlam::Node> DCSlam::copy_pending(const std::shared_ptr<Node>& node) const {
+  if (node->map) return node;
+  auto copy = std::make_shared<Node>(*node);
+  auto task = std::make_shared<JoinTask>();
+  task->index = node->task->index;
+  task->deadline_step = node->task->deadline_step;
+  // The worker writes a running join's budgets without the lock, and runs a join in one go.
+  if (!config_.threaded_joins) task->budgets = node->task->budgets;
+  task->left = copy_pending(node->task->left);
+  task->right = copy_pending(node->task->right);
+  task->result = copy;
+  copy->task = std::move(task);
+  return copy;
+}
+
+void DCSlam::take_restore_point() {
+  RestorePoint point;
+  point.local = std::move(before_update_.local);
+  point.local_map_steps = before_update_.local_map_steps;
+  point.steps = before_update_.steps;
+  point.stats_steps = before_update_.stats_steps;
+  point.last_step = before_update_.last_step;
+  point.predictions = predictions_;
+  point.closed_local_maps = closed_local_maps_;
+  point.steps_in_closed_maps = steps_in_closed_maps_;
+  point.first_join = joins_created_;
+  // The joins push_and_merge() will queue for the new local map (one leaf).
+  int leaves = 1;
+  for (auto it = stack_.rbegin(); it != stack_.rend() && leaves >= (*it)->leaves; ++it) {
+    leaves += (*it)->leaves;
+    ++point.incomplete;
+  }
+  point.joins_created = point.first_join + point.incomplete;
+  for (const auto& node : stack_) point.stack.push_back(copy_pending(node));
+  for (const auto& task : queue_) {
+    point.queue.push_back(task->index);
+    point.pending_events.push_back(events_[static_cast<std::size_t>(task->index)]);
+  }
+  point.merged_into = merged_into_;
+  point.leaves_of = leaves_of_;
+  point.closed_maps_counters = closed_maps_counters_;
+  if (config_.tree_relinearisation > 0) point.tree = tree_;
+  restore_points_.push_back(std::move(point));
+}
+
+void DCSlam::roll_back(RestorePoint point) {
+  local_ = std::move(point.local);
+  local_map_steps_ = point.local_map_steps;
+  steps_ = point.steps;
+  predictions_ = point.predictions;
+  closed_local_maps_ = point.closed_local_maps;
+  steps_in_closed_maps_ = point.steps_in_closed_maps;
+  joins_created_ = point.first_join;
+  stats_.steps.resize(point.stats_steps);
+  if (!stats_.steps.empty()) stats_.steps.back() = point.last_step;
+  stack_ = std::move(point.stack);
+  events_.resize(static_cast<std::size_t>(point.first_join));
+  for (JoinEvent& event : point.pending_events) events_[static_cast<std::size_t>(event.index)] = std::move(event);
+  merged_into_ = std::move(point.merged_into);
+  leaves_of_ = std::move(point.leaves_of);
+  closed_maps_counters_ = std::move(point.closed_maps_counters);
+  if (config_.tree_relinearisation > 0) tree_ = std::move(point.tree);
+  estimate_aliases_.clear();  // as after any update: resolve() follows the joins done
+  std::map<int, std::shared_ptr<JoinTask>> tasks;
+  const std::function<void(const std::shared_ptr<Node>&)> collect = [&](const std::shared_ptr<Node>& node) {
+    if (!node->task) return;
+    tasks[node->task->index] = node->task;
+    collect(node->task->left);
+    collect(node->task->right);
+  };
+  for (const auto& node : stack_) collect(node);
+  queue_.clear();
+  for (const int index : point.queue) queue_.push_back(tasks.at(index));
 }
 
 // The paper's Algorithm 2: while the new map is at least as big as the top of the stack, pop
@@ -305,25 +409,62 @@ std::int64_t DCSlam::work_on(JoinTask& task, std::int64_t budget) {
     if (task.join->done()) complete(task);
     return spent;
   } catch (const std::exception& error) {
-    throw InvalidArgument(record_join_failure(task, error));
+    record_join_failure(task, error);
+    throw JoinFailed(error.what());
   }
 }
 
-std::string DCSlam::record_join_failure(const JoinTask& task, const std::exception& error) {
+void DCSlam::record_join_failure(const JoinTask& task, const std::exception& error) {
   std::lock_guard<std::mutex> lock(mutex_);
   if (join_failure_.empty()) {
     const JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
     join_failure_ = "DCSlam: join " + std::to_string(task.index) + " (" + std::to_string(event.leaves) +
                     " local maps, queued at step " + std::to_string(event.step_created) +
-                    ") failed: " + error.what() + "; this filter cannot go on";
+                    ") failed: " + error.what();
+    failed_join_ = task.index;
   }
   queue_.clear();  // the joins after it need its result
-  return join_failure_;
 }
 
-void DCSlam::throw_if_a_join_failed() const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  if (!join_failure_.empty()) throw InvalidArgument(join_failure_);
+void DCSlam::raise_join_failure_if_any() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  if (!join_failure_.empty()) raise_join_failure(lock);
+}
+
+void DCSlam::raise_join_failure(std::unique_lock<std::mutex>& lock) {
+  // Threaded: the worker may still be leaving the failed join; it takes no other one.
+  work_done_.wait(lock, [this] { return !worker_busy_; });
+  const auto point = std::find_if(restore_points_.begin(), restore_points_.end(), [this](const RestorePoint& p) {
+    return p.first_join <= failed_join_ && failed_join_ < p.joins_created;
+  });
+  if (point == restore_points_.end()) {
+    // Restore points are not saved in checkpoints: the failure stays, and every call raises it.
+    throw InvalidArgument(join_failure_ +
+                          "; this filter cannot go on (it was resumed from a checkpoint saved while the join was "
+                          "pending, and a checkpoint keeps no restore point)");
+  }
+  const std::string message =
+      join_failure_ + "; the filter is back at its state before the update() that queued the join (step " +
+      std::to_string(events_[static_cast<std::size_t>(failed_join_)].step_created) +
+      "): that update and every call after it are undone";
+  RestorePoint restore = std::move(*point);
+  // The restore points taken after it belong to the state undone.
+  restore_points_.erase(point, restore_points_.end());
+  roll_back(std::move(restore));
+  join_failure_.clear();
+  failed_join_ = -1;
+  lock.unlock();
+  if (!config_.threaded_joins) {
+    // The work the pending joins had done, redone with the budgets they had been given (as a
+    // checkpoint's load does): it ran before without failing, and stops short of their end.
+    for (const auto& task : queue_) {
+      const std::vector<std::int64_t> budgets = std::move(task->budgets);
+      task->budgets.clear();
+      for (const std::int64_t budget : budgets) work_on(*task, budget);
+    }
+  }
+  work_ready_.notify_all();
+  throw InvalidArgument(message);
 }
 
 std::unique_ptr<MapJoin> DCSlam::make_join(const NodeMap& first, const NodeMap& second,
@@ -393,6 +534,13 @@ void DCSlam::complete(JoinTask& task) {
   result->task.reset();
   task.left.reset();
   task.right.reset();
+  // The restore point of the update that queued the join is kept until all of its joins are.
+  for (auto point = restore_points_.begin(); point != restore_points_.end(); ++point) {
+    if (point->first_join <= task.index && task.index < point->joins_created) {
+      if (--point->incomplete == 0) restore_points_.erase(point);
+      break;
+    }
+  }
 }
 
 void DCSlam::worker_loop() {
@@ -426,18 +574,23 @@ void DCSlam::worker_loop() {
 }
 
 void DCSlam::finish_joins() {
-  throw_if_a_join_failed();
+  raise_join_failure_if_any();
   if (config_.threaded_joins) {
     {
       std::unique_lock<std::mutex> lock(mutex_);
       work_done_.wait(lock, [this] { return queue_.empty() && !worker_busy_; });
     }
-    throw_if_a_join_failed();
+    raise_join_failure_if_any();
     return;
   }
-  while (!queue_.empty()) {
-    work_on(*queue_.front(), std::numeric_limits<std::int64_t>::max());
-    queue_.pop_front();
+  try {
+    while (!queue_.empty()) {
+      work_on(*queue_.front(), std::numeric_limits<std::int64_t>::max());
+      queue_.pop_front();
+    }
+  } catch (const JoinFailed&) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    raise_join_failure(lock);
   }
 }
 
@@ -450,6 +603,7 @@ std::shared_ptr<DCSlam::FrozenNode> DCSlam::freeze(const std::shared_ptr<Node>& 
     frozen->left = freeze(node->task->left);
     frozen->right = freeze(node->task->right);
     frozen->index = node->task->index;
+    frozen->step_created = events_[static_cast<std::size_t>(frozen->index)].step_created;
   }
   return frozen;
 }
@@ -462,7 +616,14 @@ DCSlam::NodeMap DCSlam::materialize(const FrozenNode& node, IdAliases& aliases, 
   const Node& left = *node.left->node;
   const Node& right = *node.right->node;
   const std::unique_ptr<MapJoin> join = make_join(first, second, left, right, node.index);
-  join->finish();
+  try {
+    join->finish();
+  } catch (const std::exception& error) {
+    // The real join fails the same way when it runs, and rolls the filter back then.
+    throw InvalidArgument("DCSlam::estimate: pending join " + std::to_string(node.index) + " (queued at step " +
+                          std::to_string(node.step_created) + ") fails: " + error.what() +
+                          "; the filter is unchanged until it runs that join (finish_joins() runs it now)");
+  }
   record_merges(*join, aliases, leaves);
   return NodeMap{std::make_shared<const GaussianMap>(join->take_result()),
                  joined_tentative(first.tentative, second.tentative, *join, left.first_leaf,
@@ -483,8 +644,11 @@ void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, LeafSets& le
   }
 }
 
+// estimate() and pose() report a failure the worker found, as every call does, and rolling
+// back is part of reporting it: a DCSlam is never const in itself (only the filter interface's
+// const calls see it so), so the cast changes nothing that was meant to stay.
 Estimate DCSlam::estimate() const {
-  throw_if_a_join_failed();
+  const_cast<DCSlam*>(this)->raise_join_failure_if_any();
   std::vector<std::shared_ptr<FrozenNode>> stack;
   LeafSets leaves;
   {
@@ -503,7 +667,13 @@ Estimate DCSlam::estimate() const {
     const int index = -1 - static_cast<int>(it - stack.rbegin());
     NodeMap first = materialize(**it, aliases, leaves);
     MapJoin join(first.map, std::move(joined), join_options(index, (*it)->node->robot_id));
-    join.finish();  // releases its inputs: at most the inputs and the result are alive
+    try {
+      join.finish();  // releases its inputs: at most the inputs and the result are alive
+    } catch (const std::exception& error) {
+      throw InvalidArgument("DCSlam::estimate: the join of the stack's map " +
+                            std::to_string(stack.rend() - it - 1) + " with the maps after it failed: " + error.what() +
+                            "; the filter is unchanged");
+    }
     record_merges(join, aliases, leaves);
     fold.push_back(join.pairing_record());
     joined = std::make_shared<GaussianMap>(join.take_result());
@@ -546,7 +716,7 @@ Vec3 DCSlam::node_robot(const Node& node) const {
 }
 
 Vec3 DCSlam::pose() const {
-  throw_if_a_join_failed();
+  const_cast<DCSlam*>(this)->raise_join_failure_if_any();  // see estimate()
   Vec3 pose = Vec3::Zero();
   {
     std::lock_guard<std::mutex> lock(mutex_);

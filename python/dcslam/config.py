@@ -33,12 +33,19 @@ def to_core_struct(values: Any, core: Any, name: str) -> Any:
         default = getattr(core, field.name)
         if isinstance(default, bool) and not _is_boolean(value):
             raise ValueError(f"{name}.{field.name}: expected True or False, got {value!r}")
-        if isinstance(default, (int, float)) and not isinstance(default, bool) and _is_boolean(value):
+        numeric = isinstance(default, (int, float)) and not isinstance(default, bool)
+        # An optional number (None by default, as SimulationConfig.side_steps) is told by its annotation.
+        numeric = numeric or (default is None and ("int" in str(field.type) or "float" in str(field.type)))
+        if numeric and _is_boolean(value):
             raise ValueError(f"{name}.{field.name}: expected a number, got {value!r}")
         try:
             setattr(core, field.name, value)
-        except TypeError as error:  # wrong Python type for a compiled field
-            raise ValueError(f"{name}.{field.name}: invalid value {value!r} ({error})") from None
+        except TypeError:  # a wrong Python type, or an integer the compiled field cannot hold
+            # pybind11's own message lists every overload over several lines: one short line instead.
+            kind = "None or a number" if default is None else type(default).__name__
+            shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
+            raise ValueError(f"{name}.{field.name}: invalid value {shown} (expected {kind}"
+                             f"{' that the field can hold' if kind != 'str' else ''})") from None
     core.validate()
     return core
 

@@ -188,8 +188,10 @@ class SlamFilter:
             ValueError: a bad shape, dtype or value (:class:`dcslam.InvalidArgument`: a
                 non-finite or absurd number, an R that is not symmetric positive definite, ids
                 missing, refused, repeated in one scan or < -1), naming the argument and row;
-                the filter is left unchanged. For :class:`DCSlam`, also when an earlier join
-                failed (the filter cannot go on).
+                the filter is left unchanged. For :class:`DCSlam`, also when a join failed
+                (this call ran it, or, threaded, the worker did): the message names the join and
+                the step whose update queued it, and the filter is back at its state just before
+                that update, every call since undone (docs/design.md §5.4).
         """
         return self._core.update(z, R, landmark_ids)
 
@@ -428,7 +430,10 @@ class DCSlam(SlamFilter):
                                    int(min_first_features), None if max_first_features is None else int(max_first_features))
 
     def finish_joins(self) -> None:
-        """Completes every queued join now (waits for the worker in threaded mode)."""
+        """Completes every queued join now (waits for the worker in threaded mode).
+
+        Raises ``ValueError`` (:class:`dcslam.InvalidArgument`) when a join fails, after putting
+        the filter back at its state before the update that queued it (docs/design.md §5.4)."""
         self._core.finish_joins()
 
 

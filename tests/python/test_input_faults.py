@@ -113,6 +113,23 @@ def test_numeric_options_refuse_booleans(field, value):
         dcslam.SlamConfig(**{field: value}).validate()
 
 
+@pytest.mark.parametrize("config, field", [(dcslam.SlamConfig, "local_map_features"), (dcslam.SlamConfig, "seed"),
+                                           (dcslam.SimulationConfig, "side_steps")])
+def test_an_integer_too_large_for_its_field_is_one_short_line(config, field):
+    # pybind11's TypeError listed the setter's signature over several lines (found by CLI fuzzing).
+    with pytest.raises(ValueError) as error:
+        config(**{field: 10 ** 20}).validate()
+    message = str(error.value)
+    assert message.startswith(f"{config.__name__}.{field}: invalid value 100000000000000000000 (expected ")
+    assert "\n" not in message and len(message) < 150, message
+
+
+@pytest.mark.parametrize("field", ["side_steps", "num_features", "world_margin"])
+def test_optional_numeric_simulation_options_refuse_booleans(field):
+    with pytest.raises(ValueError, match=f"SimulationConfig.{field}: expected a number, got True"):
+        dcslam.SimulationConfig(**{field: True}).validate()
+
+
 @pytest.mark.parametrize("association", ["jcbb", "nn"])
 def test_joins_by_id_need_ids_inside_local_maps(association):
     config = dcslam.SlamConfig(association=association, join_association="known")

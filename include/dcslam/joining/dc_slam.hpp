@@ -124,11 +124,51 @@ class DCSlam : public SlamFilter {
   std::int64_t work_on(JoinTask& task, std::int64_t budget);
   // A join that threw (a covariance that is not positive definite, say) leaves its task half
   // done and the tree without its result: the failure is recorded and named (the first one
-  // stays), and raised as InvalidArgument by this and every later call, on whichever thread
-  // the join ran, instead of escaping a worker thread (which ends the process). Returns the
-  // recorded message.
-  std::string record_join_failure(const JoinTask& task, const std::exception& error);
-  void throw_if_a_join_failed() const;
+  // stays), on whichever thread the join ran, instead of escaping a worker thread (which ends
+  // the process); work_on() then throws JoinFailed.
+  void record_join_failure(const JoinTask& task, const std::exception& error);
+  // Reports a recorded failure, if any, to the caller (InvalidArgument): the filter is first
+  // put back as it was before the update() that queued the failed join (its restore point),
+  // so that it goes on from there. Every public call starts with it: a failure on the worker
+  // reaches the caller at the next call. const in estimate() and pose() only in name: see
+  // dc_slam.cpp.
+  void raise_join_failure_if_any();
+  [[noreturn]] void raise_join_failure(std::unique_lock<std::mutex>& lock);
+  // What an update() that closes the local map and queues joins changes, as it was before:
+  // the local map before the update and everything the closure and its joins touch. Kept
+  // until every join the closure queued is complete (cheap when nothing fails: the stack's
+  // maps are shared, not copied; see docs/design.md, "A failed join").
+  struct RestorePoint {
+    std::int64_t step = 0;  // steps_ at the update
+    int first_join = 0;     // the joins the closure queued: first_join .. joins_created - 1
+    int joins_created = 0;  // of the filter, after the closure
+    int incomplete = 0;     // of those joins
+    std::unique_ptr<EkfSlam> local;
+    std::int64_t local_map_steps = 0, steps = 0, predictions = 0, closed_local_maps = 0, steps_in_closed_maps = 0;
+    std::size_t stats_steps = 0;
+    StepStats last_step;  // stats_.steps.back() before the update, when stats_steps > 0
+    std::vector<std::shared_ptr<Node>> stack;  // pending nodes as copies (copy_pending())
+    std::vector<int> queue;                    // indices of the queued joins
+    std::vector<JoinEvent> pending_events;     // of the pending joins, as they were
+    IdAliases merged_into;
+    LeafSets leaves_of;
+    std::map<std::string, double> closed_maps_counters;
+    JoinTree tree;
+  };
+  // The local map before an update that may close it (update()); moved into the restore point
+  // if it does.
+  struct BeforeUpdate {
+    std::unique_ptr<EkfSlam> local;
+    std::int64_t local_map_steps = 0, steps = 0;
+    std::size_t stats_steps = 0;
+    StepStats last_step;
+  };
+  // A pending node and its join, copied down to its complete inputs (which never change
+  // again, so they are shared); the copy's join has not started (its budgets are kept outside
+  // threaded mode, to be redone as a checkpoint redoes them). mutex_ held.
+  std::shared_ptr<Node> copy_pending(const std::shared_ptr<Node>& node) const;
+  void take_restore_point();  // at the start of close_local_map(); mutex_ held
+  void roll_back(RestorePoint point);  // mutex_ held, the worker idle
   void complete(JoinTask& task);
   void worker_loop();
   // Options of join `index`, whose first map's robot has pose id `first_robot_id`.
@@ -148,6 +188,7 @@ class DCSlam : public SlamFilter {
     NodeMap map;                 // map.map null while pending
     std::shared_ptr<FrozenNode> left, right;
     int index = 0;
+    std::int64_t step_created = 0;  // of the pending join
   };
   std::shared_ptr<FrozenNode> freeze(const std::shared_ptr<Node>& node) const;  // mutex_ held
   // The map of a frozen node, computing pending joins on copies (never touching the real
@@ -195,6 +236,10 @@ class DCSlam : public SlamFilter {
   // Gauss–Newton passes of the last estimate()'s re-linearised tree, and its last step.
   mutable RelinearisationReport relinearisation_;  // guarded by mutex_
   std::string join_failure_;  // empty unless a join failed (record_join_failure())
+  int failed_join_ = -1;      // its index
+  // Oldest first; guarded by mutex_ (complete() releases them on the worker).
+  std::deque<RestorePoint> restore_points_;
+  BeforeUpdate before_update_;  // front end only
   std::thread worker_;
 
   mutable RunStats stats_;  // counters are refreshed by stats()
