@@ -28,8 +28,9 @@ std::string argument(const char* function, const char* name) {
 // are checked by check_measurements, which names the offending row.
 DoubleArray measurements_array(const py::handle& obj, const std::string& where) {
   DoubleArray array = as_double_array(obj, where);
-  if (array.size() == 0 && array.ndim() <= 2) return DoubleArray(std::vector<py::ssize_t>{0, 2});
-  if (array.ndim() != 2 || array.shape(1) != 2) {
+  const bool shaped = array.ndim() == 2 && array.shape(1) == 2;  // (m, 2), m = 0 included: as it is
+  if (!shaped && array.size() == 0 && array.ndim() <= 2) return DoubleArray(std::vector<py::ssize_t>{0, 2});
+  if (!shaped) {
     throw py::value_error(where + ": expected shape (m, 2), got " + shape_string(array));
   }
   return array;
@@ -195,8 +196,10 @@ void define_slam_filter(py::module_& m) {
       .def(
           "predict",
           [](SlamFilter& filter, const py::object& u, const py::object& Q) {
-            const Vec3 motion = as_vector(u, 3, argument("predict", "u"));
-            const Mat3 covariance = as_matrix(Q, 3, 3, argument("predict", "Q"));
+            // Built once: the per-step path should not allocate its error messages' prefixes.
+            static const std::string where_u = argument("predict", "u"), where_Q = argument("predict", "Q");
+            const Vec3 motion = as_fixed<3, 1>(u, where_u);
+            const Mat3 covariance = as_fixed<3, 3>(Q, where_Q);
             py::gil_scoped_release release;
             filter.predict(motion, covariance);
           },
@@ -205,9 +208,9 @@ void define_slam_filter(py::module_& m) {
           "update",
           [](SlamFilter& filter, const py::object& z, const py::object& R,
              const py::object& landmark_ids) {
-            const DoubleArray z_array = measurements_array(z, argument("update", "z"));
-            const std::vector<Mat2> covariance =
-                covariances(R, z_array.shape(0), argument("update", "R"));
+            static const std::string where_z = argument("update", "z"), where_R = argument("update", "R");
+            const DoubleArray z_array = measurements_array(z, where_z);
+            const std::vector<Mat2> covariance = covariances(R, z_array.shape(0), where_R);
             const auto ids = optional_ids(landmark_ids, "update");
             // Zero-copy view of the numpy rows.
             const Eigen::Map<const MeasurementMatrix> measurements(z_array.data(), z_array.shape(0), 2);
@@ -237,7 +240,14 @@ void define_slam_filter(py::module_& m) {
              out["joint_covariance"] = py::cast(std::move(estimate.covariance));
              return out;
            })
-      .def("pose", &SlamFilter::pose)
+      .def("pose",
+           [](const SlamFilter& filter) {
+             // A plain (3,) array: cheaper than the Eigen caster's capsule-owned copy.
+             const Vec3 pose = filter.pose();
+             py::array_t<double> out(3);
+             std::copy(pose.data(), pose.data() + 3, out.mutable_data());
+             return out;
+           })
       .def(
           "resolve",
           [](const SlamFilter& filter, const py::object& ids) {
