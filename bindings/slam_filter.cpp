@@ -60,6 +60,31 @@ std::optional<std::vector<std::int64_t>> optional_ids(const py::handle& obj, con
   return as_int64_vector(obj, argument(function, "landmark_ids"));
 }
 
+// Whether a Python thread other than the caller exists in this interpreter (one that could
+// take the GIL while C++ works).
+bool other_python_threads() {
+  PyThreadState* const self = PyThreadState_Get();
+  for (PyThreadState* thread = PyInterpreterState_ThreadHead(PyThreadState_GetInterpreter(self)); thread;
+       thread = PyThreadState_Next(thread)) {
+    if (thread != self) return true;
+  }
+  return false;
+}
+
+// The per-step calls release the GIL only when another Python thread could use it: alone, the
+// release and re-acquire (0.35-0.5 us a scan measured on the development machine, BENCHMARKS.md)
+// would be paid for nothing. A thread started meanwhile waits for the call, as it would for any
+// Python code.
+class ReleaseGilIfShared {
+ public:
+  ReleaseGilIfShared() {
+    if (other_python_threads()) release_.emplace();
+  }
+
+ private:
+  std::optional<py::gil_scoped_release> release_;
+};
+
 py::array_t<std::int64_t> int64_array(std::vector<std::int64_t> values) {
   py::array_t<std::int64_t> array(static_cast<py::ssize_t>(values.size()));
   std::copy(values.begin(), values.end(), array.mutable_data());
@@ -200,7 +225,7 @@ void define_slam_filter(py::module_& m) {
             static const std::string where_u = argument("predict", "u"), where_Q = argument("predict", "Q");
             const Vec3 motion = as_fixed<3, 1>(u, where_u);
             const Mat3 covariance = as_fixed<3, 3>(Q, where_Q);
-            py::gil_scoped_release release;
+            const ReleaseGilIfShared release;
             filter.predict(motion, covariance);
           },
           py::arg("u"), py::arg("Q"))
@@ -216,7 +241,7 @@ void define_slam_filter(py::module_& m) {
             const Eigen::Map<const MeasurementMatrix> measurements(z_array.data(), z_array.shape(0), 2);
             std::vector<std::int64_t> assigned;
             {
-              py::gil_scoped_release release;
+              const ReleaseGilIfShared release;
               assigned = filter.update(measurements, covariance, ids ? &*ids : nullptr);
             }
             return int64_array(std::move(assigned));

@@ -1,7 +1,8 @@
 """SLAM filters: the shared :class:`SlamFilter` surface and the sparse-aware :class:`EkfSlam`.
 
 Both wrap a compiled filter (``dcslam._core``); Python crosses into C++ once per call, and
-the GIL is released while C++ works (docs/design.md §9). A filter object is not thread-safe: call
+the GIL is released while C++ works (``predict`` and ``update``: when another Python thread
+exists; docs/design.md §9). A filter object is not thread-safe: call
 it from one thread at a time.
 """
 

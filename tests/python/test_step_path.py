@@ -83,3 +83,36 @@ def test_copies_drive_their_own_filter():
             np.testing.assert_array_equal(slam.pose(), before)
             assert not np.array_equal(other.pose(), before)
         assert other.predict.__self__ is other._core and other.pose.__self__ is other._core
+
+
+def test_a_long_update_lets_another_python_thread_run():
+    """The GIL is released while C++ works when another Python thread exists (only then: alone,
+    nothing could use it). A spinning thread must record times inside a long update."""
+    import threading
+    import time
+
+    sim = dcslam.simulate("straight", steps=120, seed=0, features_per_step=40)
+    slam = dcslam.EkfSlam(dcslam.SlamConfig(association="known", join_association="known"))
+    slam.run(sim)
+    step = sim.steps[-1]
+    stamps, stop = [], threading.Event()
+
+    def spin():
+        while not stop.is_set():
+            stamps.append(time.perf_counter())
+            time.sleep(0)
+
+    thread = threading.Thread(target=spin)
+    thread.start()
+    try:
+        while not stamps:  # the thread is running
+            time.sleep(0.001)
+        slam.predict(step.u, step.Q)
+        begin = time.perf_counter()
+        slam.update(step.z, step.R, step.true_ids)
+        end = time.perf_counter()
+    finally:
+        stop.set()
+        thread.join()
+    assert end - begin > 2e-3, "the update is too short to tell"
+    assert sum(begin < t < end for t in stamps) >= 3
