@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import enum
+import pickle
 import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Dict, List, NamedTuple, Optional
@@ -196,7 +197,10 @@ def _resumed(saving: _Saving, identity: Dict[str, Any]) -> Dict[str, Any]:
         if saved["run"].get(key) != value:
             _fail(f"--resume: {saving.resume} is of another run: its {key} is {saved['run'].get(key)!r}, "
                   f"this run's {value!r}")
-    return saved["progress"]
+    try:
+        return {name: pickle.loads(state) for name, state in saved["progress"].items()}
+    except Exception as error:  # the file's checksum held, so this is a file of another dcslam version
+        _fail(f"--resume: cannot load {saving.resume}: {type(error).__name__}: {error}")
 
 
 def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Path, max_steps: Optional[int],
@@ -232,14 +236,16 @@ def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Pat
     except ValueError as error:
         _fail(f"cannot build the filter for {name}: {error}{hint}")
 
-    saved: Dict[str, PipelineProgress] = dict(resumed)
+    # Each filter's progress pickled when it was saved: a filter that has finished its steps
+    # goes on (its final joins and estimate) while the next one runs and saves.
+    saved: Dict[str, bytes] = {name: pickle.dumps(progress) for name, progress in resumed.items()}
 
     save: Optional[Callable[[PipelineProgress], None]] = None
     if saving.checkpoint is not None:
         checkpoint: Path = saving.checkpoint
 
         def save(progress: PipelineProgress) -> None:
-            saved[progress.filter_name] = progress
+            saved[progress.filter_name] = pickle.dumps(progress, protocol=pickle.HIGHEST_PROTOCOL)
             try:
                 io.write_run_checkpoint(checkpoint, {"run": identity, "progress": saved})
             except OSError as error:
