@@ -6,7 +6,7 @@ import enum
 import pickle
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Dict, List, NamedTuple, Optional
+from typing import TYPE_CHECKING, Any, Callable, Dict, List, NamedTuple, NoReturn, Optional
 
 import typer
 from rich.console import Console
@@ -142,7 +142,7 @@ def _filters(choice: FilterChoice) -> List[str]:
     return ["ekf", "dc"] if choice is FilterChoice.both else [choice.value]
 
 
-def _fail(message: str) -> None:
+def _fail(message: str) -> NoReturn:
     console.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)  # one line, unwrapped
     raise typer.Exit(code=2)
 
