@@ -161,8 +161,9 @@ class SlamFilter:
 
     def _bind_direct(self) -> None:
         # Instance attributes shadow the documented methods below (vars(): mypy would refuse
-        # assigning to a method).
-        vars(self).update({name: getattr(self._core, name) for name in self._DIRECT})
+        # assigning to a method); a method a subclass overrides is left to the subclass.
+        vars(self).update({name: getattr(self._core, name) for name in self._DIRECT
+                           if getattr(type(self), name) is getattr(SlamFilter, name)})
 
     def __getstate__(self) -> Dict[str, Any]:
         # Without the bound methods: a copy binds its own (deepcopy would keep the original's).

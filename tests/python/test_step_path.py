@@ -116,3 +116,19 @@ def test_a_long_update_lets_another_python_thread_run():
         thread.join()
     assert end - begin > 2e-3, "the update is too short to tell"
     assert sum(begin < t < end for t in stamps) >= 3
+
+
+def test_a_subclass_that_overrides_a_step_method_keeps_its_override():
+    class Counting(dcslam.EkfSlam):
+        calls = 0
+
+        def predict(self, u, Q):
+            Counting.calls += 1
+            super().predict(u, Q)
+
+    slam = Counting(dcslam.SlamConfig())
+    slam.predict(U, Q)
+    copy.deepcopy(slam).predict(U, Q)
+    assert Counting.calls == 2
+    np.testing.assert_array_equal(slam.pose(), U)  # update and pose still go straight to C++
+    assert slam.pose.__self__ is slam._core
