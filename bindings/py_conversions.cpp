@@ -19,6 +19,11 @@ std::string shape_string(const py::array& array) {
 }
 
 DoubleArray as_double_array(const py::handle& obj, const std::string& where) {
+  // The per-step path: an array that is already C-contiguous float64 in native byte order
+  // (check_ tests all three) is taken as it is. numpy's conversion below would return it
+  // unchanged too, but costs two PyArray_FromAny calls and a dtype lookup, more than a
+  // step on a small map.
+  if (DoubleArray::check_(obj)) return py::reinterpret_borrow<DoubleArray>(obj);
   // ensure() returns a null handle (and clears the Python error) when it cannot convert.
   const py::array source = obj.is_none() ? py::array() : py::array::ensure(obj);
   if (!source) {
@@ -69,6 +74,24 @@ Eigen::MatrixXd as_matrix(const py::handle& obj, Eigen::Index rows, Eigen::Index
   using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
   return Eigen::Map<const RowMajor>(array.data(), array.shape(0), array.shape(1));
 }
+
+template <int Rows, int Cols>
+Eigen::Matrix<double, Rows, Cols> as_fixed(const py::handle& obj, const std::string& where) {
+  const DoubleArray array = as_double_array(obj, where);
+  const bool ok = Cols == 1 ? array.ndim() == 1 && array.shape(0) == Rows
+                            : array.ndim() == 2 && array.shape(0) == Rows && array.shape(1) == Cols;
+  if (!ok) {
+    const std::string expected = Cols == 1 ? "(" + std::to_string(Rows) + ",)"
+                                           : "(" + std::to_string(Rows) + ", " + std::to_string(Cols) + ")";
+    throw py::value_error(where + ": expected shape " + expected + ", got " + shape_string(array));
+  }
+  require_finite(array, where);
+  using Layout = Eigen::Matrix<double, Rows, Cols, Cols == 1 ? Eigen::ColMajor : Eigen::RowMajor>;
+  return Eigen::Map<const Layout>(array.data());
+}
+
+template Eigen::Matrix<double, 3, 1> as_fixed<3, 1>(const py::handle&, const std::string&);
+template Eigen::Matrix<double, 3, 3> as_fixed<3, 3>(const py::handle&, const std::string&);
 
 Int64Array as_int64_array(const py::handle& obj, const std::string& where) {
   py::array array = obj.is_none() ? py::array() : py::array::ensure(obj);

@@ -34,6 +34,11 @@ Eigen::VectorXd as_vector(const py::handle& obj, Eigen::Index size, const std::s
 Eigen::MatrixXd as_matrix(const py::handle& obj, Eigen::Index rows, Eigen::Index cols,
                           const std::string& where);
 
+// as_vector (Cols == 1) or as_matrix for a fixed size, with their checks and messages, without
+// a heap allocation (the per-step path). Defined for 3 x 1 and 3 x 3.
+template <int Rows, int Cols>
+Eigen::Matrix<double, Rows, Cols> as_fixed(const py::handle& obj, const std::string& where);
+
 // A 1-D array of integers (any integer dtype; an empty list is accepted) as int64 values.
 // Floats, strings and booleans are refused rather than converted, unsigned values beyond
 // int64 rather than wrapped.

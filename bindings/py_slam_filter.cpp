@@ -28,8 +28,9 @@ std::string argument(const char* function, const char* name) {
 // are checked by check_measurements, which names the offending row.
 DoubleArray measurements_array(const py::handle& obj, const std::string& where) {
   DoubleArray array = as_double_array(obj, where);
-  if (array.size() == 0 && array.ndim() <= 2) return DoubleArray(std::vector<py::ssize_t>{0, 2});
-  if (array.ndim() != 2 || array.shape(1) != 2) {
+  const bool shaped = array.ndim() == 2 && array.shape(1) == 2;  // (m, 2), m = 0 included: as it is
+  if (!shaped && array.size() == 0 && array.ndim() <= 2) return DoubleArray(std::vector<py::ssize_t>{0, 2});
+  if (!shaped) {
     throw py::value_error(where + ": expected shape (m, 2), got " + shape_string(array));
   }
   return array;
@@ -58,6 +59,31 @@ std::optional<std::vector<std::int64_t>> optional_ids(const py::handle& obj, con
   if (obj.is_none()) return std::nullopt;
   return as_int64_vector(obj, argument(function, "landmark_ids"));
 }
+
+// Whether a Python thread other than the caller exists in this interpreter (one that could
+// take the GIL while C++ works).
+bool other_python_threads() {
+  PyThreadState* const self = PyThreadState_Get();
+  for (PyThreadState* thread = PyInterpreterState_ThreadHead(PyThreadState_GetInterpreter(self)); thread;
+       thread = PyThreadState_Next(thread)) {
+    if (thread != self) return true;
+  }
+  return false;
+}
+
+// The per-step calls release the GIL only when another Python thread could use it: alone, the
+// release and re-acquire (0.35-0.5 us a scan measured on the development machine, BENCHMARKS.md)
+// would be paid for nothing. A thread started meanwhile waits for the call, as it would for any
+// Python code.
+class ReleaseGilIfShared {
+ public:
+  ReleaseGilIfShared() {
+    if (other_python_threads()) release_.emplace();
+  }
+
+ private:
+  std::optional<py::gil_scoped_release> release_;
+};
 
 py::array_t<std::int64_t> int64_array(std::vector<std::int64_t> values) {
   py::array_t<std::int64_t> array(static_cast<py::ssize_t>(values.size()));
@@ -195,9 +221,11 @@ void define_slam_filter(py::module_& m) {
       .def(
           "predict",
           [](SlamFilter& filter, const py::object& u, const py::object& Q) {
-            const Vec3 motion = as_vector(u, 3, argument("predict", "u"));
-            const Mat3 covariance = as_matrix(Q, 3, 3, argument("predict", "Q"));
-            py::gil_scoped_release release;
+            // Built once: the per-step path should not allocate its error messages' prefixes.
+            static const std::string where_u = argument("predict", "u"), where_Q = argument("predict", "Q");
+            const Vec3 motion = as_fixed<3, 1>(u, where_u);
+            const Mat3 covariance = as_fixed<3, 3>(Q, where_Q);
+            const ReleaseGilIfShared release;
             filter.predict(motion, covariance);
           },
           py::arg("u"), py::arg("Q"))
@@ -205,15 +233,15 @@ void define_slam_filter(py::module_& m) {
           "update",
           [](SlamFilter& filter, const py::object& z, const py::object& R,
              const py::object& landmark_ids) {
-            const DoubleArray z_array = measurements_array(z, argument("update", "z"));
-            const std::vector<Mat2> covariance =
-                covariances(R, z_array.shape(0), argument("update", "R"));
+            static const std::string where_z = argument("update", "z"), where_R = argument("update", "R");
+            const DoubleArray z_array = measurements_array(z, where_z);
+            const std::vector<Mat2> covariance = covariances(R, z_array.shape(0), where_R);
             const auto ids = optional_ids(landmark_ids, "update");
             // Zero-copy view of the numpy rows.
             const Eigen::Map<const MeasurementMatrix> measurements(z_array.data(), z_array.shape(0), 2);
             std::vector<std::int64_t> assigned;
             {
-              py::gil_scoped_release release;
+              const ReleaseGilIfShared release;
               assigned = filter.update(measurements, covariance, ids ? &*ids : nullptr);
             }
             return int64_array(std::move(assigned));
@@ -237,7 +265,14 @@ void define_slam_filter(py::module_& m) {
              out["joint_covariance"] = py::cast(std::move(estimate.covariance));
              return out;
            })
-      .def("pose", &SlamFilter::pose)
+      .def("pose",
+           [](const SlamFilter& filter) {
+             // A plain (3,) array: cheaper than the Eigen caster's capsule-owned copy.
+             const Vec3 pose = filter.pose();
+             py::array_t<double> out(3);
+             std::copy(pose.data(), pose.data() + 3, out.mutable_data());
+             return out;
+           })
       .def(
           "resolve",
           [](const SlamFilter& filter, const py::object& ids) {

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import enum
+import pickle
 import tempfile
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import TYPE_CHECKING, Any, Callable, Dict, List, NamedTuple, NoReturn, Optional
 
 import typer
 from rich.console import Console
@@ -13,6 +14,9 @@ from rich.markup import escape
 from rich.table import Table
 
 from ._version import __version__
+
+if TYPE_CHECKING:  # the command imports the library lazily, to start fast
+    from .metrics import GpsAlignment
 
 app = typer.Typer(
     add_completion=False,
@@ -94,6 +98,25 @@ JOIN_ITERATIONS_OPTION = typer.Option(None, "--join-iterations", min=1, help="D&
 KEEP_POSES_OPTION = typer.Option(False, "--keep-local-map-poses", help="D&C: keep the robot pose at every "
                                   "local-map boundary in the map (past_poses in map_dc.npz).")
 PROGRESS_OPTION = typer.Option(None, "--progress/--no-progress", help="Progress bar (default: on a terminal).")
+CHECKPOINT_OPTION = typer.Option(None, "--checkpoint", help="Save the run's state (every filter, every step "
+                                 "so far) to this file every --checkpoint-interval steps and when the steps end, "
+                                 "to go on later with --resume.")
+CHECKPOINT_INTERVAL_OPTION = typer.Option(1000, "--checkpoint-interval", min=1,
+                                          help="Steps between two saves of --checkpoint.")
+RESUME_OPTION = typer.Option(None, "--resume", help="Go on from this checkpoint of the same run (same data, "
+                             "options, --filter and --max-steps); the outputs are bitwise those of a run never "
+                             "stopped.")
+STOP_AFTER_OPTION = typer.Option(None, "--stop-after", min=0, help="Run each filter's first N steps, save "
+                                 "--checkpoint and stop without outputs (e.g. a job with a time limit).")
+
+
+class _Saving(NamedTuple):
+    """The command line's checkpoint options."""
+
+    checkpoint: Optional[Path]
+    interval: int
+    resume: Optional[Path]
+    stop_after: Optional[int]
 
 
 def _config_with(cfg, association, join_association, local_map_features, join_iterations,
@@ -119,12 +142,12 @@ def _filters(choice: FilterChoice) -> List[str]:
     return ["ekf", "dc"] if choice is FilterChoice.both else [choice.value]
 
 
-def _fail(message: str) -> None:
+def _fail(message: str) -> NoReturn:
     console.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)  # one line, unwrapped
     raise typer.Exit(code=2)
 
 
-def _require_writable_folder(output: Path) -> None:
+def _require_writable_folder(output: Path, option: str = "--output") -> None:
     """Creates ``output`` and writes a file into it, so that a run whose results could not be
     written fails before it starts, not after."""
     try:
@@ -132,41 +155,123 @@ def _require_writable_folder(output: Path) -> None:
         with tempfile.TemporaryFile(dir=output):
             pass
     except OSError as error:
-        _fail(f"cannot write to --output {output}: {error.strerror or error}")
+        _fail(f"cannot write to {option} {output}: {error.strerror or error}")
+
+
+def _run_identity(name: str, steps, cfg, filters: List[str], max_steps: Optional[int],
+                  checkpoint_every: Optional[int]) -> Dict[str, Any]:
+    """What a checkpoint must share with the run that resumes it: the data (a digest of every
+    step's motion, measurements and landmark ids), the options and the filters."""
+    import hashlib
+
+    import numpy as np
+
+    digest = hashlib.sha256()
+    for step in steps:
+        for values in (step.u, step.Q, step.z, step.R):
+            digest.update(np.ascontiguousarray(values, dtype=float).tobytes())
+        ids = getattr(step, "landmark_ids", None)
+        if ids is not None:
+            digest.update(np.ascontiguousarray(ids, dtype=np.int64).tobytes())
+    # In this order the first difference named is the most telling one (the digest last).
+    return {"dataset": name, "filters": filters, "max_steps": max_steps, "checkpoint_every": checkpoint_every,
+            **cfg.to_dict(), "data digest": digest.hexdigest()}
+
+
+def _resumed(saving: _Saving, identity: Dict[str, Any]) -> Dict[str, Any]:
+    """The pipelines' progress saved in --resume's file, or a one-line error when it cannot
+    be read or is of another run."""
+    from . import io
+
+    if saving.resume is None:
+        return {}
+    try:
+        saved = io.read_run_checkpoint(saving.resume)
+    except OSError as error:
+        _fail(f"cannot read --resume {saving.resume}: {error.strerror or error}")
+    except ValueError as error:
+        _fail(f"--resume: {error}")
+    if not isinstance(saved, dict) or set(saved) != {"run", "progress"}:
+        _fail(f"--resume: {saving.resume}: not a checkpoint of `dcslam run`")
+    for key, value in identity.items():
+        if saved["run"].get(key) != value:
+            _fail(f"--resume: {saving.resume} is of another run: its {key} is {saved['run'].get(key)!r}, "
+                  f"this run's {value!r}")
+    try:
+        return {name: pickle.loads(state) for name, state in saved["progress"].items()}
+    except Exception as error:  # the file's checksum held, so this is a file of another dcslam version
+        _fail(f"--resume: cannot load {saving.resume}: {type(error).__name__}: {error}")
 
 
 def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Path, max_steps: Optional[int],
                  plots: bool, progress: Optional[bool], gps=None, hint: str = "", truth=None,
-                 checkpoint_every: Optional[int] = None) -> None:
+                 checkpoint_every: Optional[int] = None, saving: Optional[_Saving] = None) -> None:
     """Checks the output folder and builds every pipeline first (bad options fail before any
     work), runs them, writes and summarises the results. ``hint`` is added to the message of a
     refused configuration. ``truth``: a dataset with ground truth (``poses_true``,
     ``landmarks_true``, ``landmark_ids_true``, ``true_ids``), scored with
-    :func:`dcslam.evaluation.score_run` (the association too when the run hid the ids)."""
+    :func:`dcslam.evaluation.score_run` (the association too when the run hid the ids).
+    ``saving``: the checkpoint options (--checkpoint, --resume, --stop-after)."""
+    from . import io
     from .evaluation import score_run
     from .metrics import gps_alignment, map_agreement, map_trajectory
-    from .pipeline import SlamPipeline
+    from .pipeline import PipelineProgress, SlamPipeline
 
+    saving = saving or _Saving(None, 1, None, None)
+    if saving.stop_after is not None and saving.checkpoint is None:
+        _fail("--stop-after needs --checkpoint FILE to save the run in")
     _require_writable_folder(output)
+    if saving.checkpoint is not None:
+        _require_writable_folder(saving.checkpoint.absolute().parent, "--checkpoint")
+    filters = _filters(filter_choice)
+    identity = _run_identity(name, steps, cfg, filters, max_steps, checkpoint_every) if (
+        saving.checkpoint or saving.resume) else {}
+    resumed = _resumed(saving, identity)
     show_progress = console.is_terminal if progress is None else progress
     try:
         pipelines = [SlamPipeline(steps, cfg, filter=filter_name, max_steps=max_steps, progress=show_progress,
-                                  description=f"{name}: {filter_name}", checkpoint_every=checkpoint_every)
-                     for filter_name in _filters(filter_choice)]
+                                  description=f"{name}: {filter_name}", checkpoint_every=checkpoint_every,
+                                  resume=resumed.get(filter_name))
+                     for filter_name in filters]
     except ValueError as error:
         _fail(f"cannot build the filter for {name}: {error}{hint}")
+
+    # Each filter's progress pickled when it was saved: a filter that has finished its steps
+    # goes on (its final joins and estimate) while the next one runs and saves.
+    saved: Dict[str, bytes] = {name: pickle.dumps(progress) for name, progress in resumed.items()}
+
+    save: Optional[Callable[[PipelineProgress], None]] = None
+    if saving.checkpoint is not None:
+        checkpoint: Path = saving.checkpoint
+
+        def save(progress: PipelineProgress) -> None:
+            saved[progress.filter_name] = pickle.dumps(progress, protocol=pickle.HIGHEST_PROTOCOL)
+            try:
+                io.write_run_checkpoint(checkpoint, {"run": identity, "progress": saved})
+            except OSError as error:
+                _fail(f"cannot write --checkpoint {checkpoint}: {error.strerror or error}")
+
     try:
-        results = [pipeline.run() for pipeline in pipelines]
+        if saving.stop_after is not None:
+            done = [pipeline.run_steps(saving.stop_after, save, saving.interval).steps_done for pipeline in pipelines]
+            if any(count < pipeline.step_count for count, pipeline in zip(done, pipelines)):
+                console.print(f"Stopped after {', '.join(f'{n} steps of {f}' for n, f in zip(done, filters))}; "
+                              f"the run is saved in {saving.checkpoint}: go on with --resume {saving.checkpoint}")
+                return
+        results = [pipeline.run(save, saving.interval) for pipeline in pipelines]
     except ValueError as error:  # a step the filter refused; the message names it
         _fail(f"{name}: {error}")
 
-    alignments: Dict[str, object] = {}
-    map_alignments: Dict[str, object] = {}
+    # The map-refit trajectory: each step's pose re-fitted on the final map (written beside the
+    # online one, and the GPS comparison on the same footing for both filters).
+    refits = {result.filter_name: map_trajectory(result, steps) for result in results}
+    alignments: Dict[str, GpsAlignment] = {}
+    map_alignments: Dict[str, GpsAlignment] = {}
     if gps is not None:
         for result in results:
             try:
                 alignments[result.filter_name] = gps_alignment(result.timestamps, result.trajectory, gps)
-                map_alignments[result.filter_name] = gps_alignment(*map_trajectory(result, steps), gps)
+                map_alignments[result.filter_name] = gps_alignment(*refits[result.filter_name], gps)
             except ValueError as error:
                 console.print(f"[yellow]GPS alignment of {result.filter_name} skipped:[/] {error}")
     agreement = map_agreement(results[0].estimate, results[1].estimate) if len(results) == 2 else None
@@ -178,7 +283,7 @@ def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Pat
                                                    truth.landmark_ids_true, truth.true_ids if hidden_ids else None)
 
     try:
-        written = _write_outputs(results, alignments, output, plots, name, truth, scores)
+        written = _write_outputs(results, refits, alignments, output, plots, name, truth, scores)
     except OSError as error:  # e.g. the disk filled up during the run
         _fail(f"cannot write the results to --output {output}: {error}")
     console.print(_summary_table(name, results, alignments, map_alignments, agreement, scores))
@@ -187,7 +292,8 @@ def _run_dataset(name: str, steps, cfg, filter_choice: FilterChoice, output: Pat
         console.print(f"  {path}")
 
 
-def _write_outputs(results, alignments, output: Path, plots: bool, name: str, truth=None, scores=None) -> List[Path]:
+def _write_outputs(results, refits, alignments, output: Path, plots: bool, name: str, truth=None,
+                   scores=None) -> List[Path]:
     from . import io
 
     output.mkdir(parents=True, exist_ok=True)
@@ -201,12 +307,15 @@ def _write_outputs(results, alignments, output: Path, plots: bool, name: str, tr
     for result in results:
         tag = result.filter_name
         paths = {kind: output / f"{stem}_{tag}.{ext}" for kind, stem, ext in (
-            ("tum", "trajectory", "tum"), ("kitti", "trajectory", "kitti"), ("map", "map", "npz"),
-            ("stats", "stats", "json"))}
+            ("tum", "trajectory", "tum"), ("kitti", "trajectory", "kitti"), ("map_tum", "trajectory_map", "tum"),
+            ("map_kitti", "trajectory_map", "kitti"), ("map", "map", "npz"), ("stats", "stats", "json"))}
         io.write_tum(paths["tum"], result.timestamps, result.trajectory)
         io.write_kitti(paths["kitti"], result.trajectory)
+        refit_times, refit_poses = refits[tag]
+        io.write_tum(paths["map_tum"], refit_times, refit_poses)
+        io.write_kitti(paths["map_kitti"], refit_poses)
         io.save_map(paths["map"], result.estimate)
-        extra = {"dataset": name}
+        extra: Dict[str, Any] = {"dataset": name}
         alignment = alignments.get(tag)
         if alignment is not None:
             extra["gps_alignment"] = {
@@ -302,11 +411,16 @@ def run_victoria_park(
     join_iterations: Optional[int] = JOIN_ITERATIONS_OPTION,
     keep_local_map_poses: bool = KEEP_POSES_OPTION,
     progress: Optional[bool] = PROGRESS_OPTION,
+    checkpoint: Optional[Path] = CHECKPOINT_OPTION,
+    checkpoint_interval: int = CHECKPOINT_INTERVAL_OPTION,
+    resume: Optional[Path] = RESUME_OPTION,
+    stop_after: Optional[int] = STOP_AFTER_OPTION,
 ) -> None:
     """SLAM on Victoria Park (ACFR): trees as landmarks, no ids, GPS as the reference.
 
-    Writes per filter trajectory_<f>.tum / .kitti, map_<f>.npz, stats_<f>.json and
-    map_<f>.png, plus timing.png, into --output.
+    Writes per filter trajectory_<f>.tum / .kitti (the online trajectory),
+    trajectory_map_<f>.tum / .kitti (each step's pose re-fitted on the final map),
+    map_<f>.npz, stats_<f>.json and map_<f>.png, plus timing.png, into --output.
     """
     from .datasets import victoria_park
 
@@ -320,7 +434,8 @@ def run_victoria_park(
         _fail(str(error))
     _run_dataset("Victoria Park", dataset.steps, cfg, filter, output, max_steps, plots, progress, gps=dataset.gps,
                  hint=f". Victoria Park has no landmark ids: it needs association 'nn' or 'jcbb' inside local "
-                      f"maps (this run asked for {cfg.association!r}) and 'rjc' or 'jcbb' at joins.")
+                      f"maps (this run asked for {cfg.association!r}) and 'rjc' or 'jcbb' at joins.",
+                 saving=_Saving(checkpoint, checkpoint_interval, resume, stop_after))
 
 
 @run_app.command("isam")
@@ -336,6 +451,10 @@ def run_isam(
     join_iterations: Optional[int] = JOIN_ITERATIONS_OPTION,
     keep_local_map_poses: bool = KEEP_POSES_OPTION,
     progress: Optional[bool] = PROGRESS_OPTION,
+    checkpoint: Optional[Path] = CHECKPOINT_OPTION,
+    checkpoint_interval: int = CHECKPOINT_INTERVAL_OPTION,
+    resume: Optional[Path] = RESUME_OPTION,
+    stop_after: Optional[int] = STOP_AFTER_OPTION,
 ) -> None:
     """SLAM on an iSAM/GTSAM 2D graph replayed as steps, with the file's landmark ids.
 
@@ -350,7 +469,8 @@ def run_isam(
                            join_iterations, keep_local_map_poses)
     except ValueError as error:
         _fail(str(error))
-    _run_dataset(file.name, dataset.steps, cfg, filter, output, max_steps, plots, progress)
+    _run_dataset(file.name, dataset.steps, cfg, filter, output, max_steps, plots, progress,
+                 saving=_Saving(checkpoint, checkpoint_interval, resume, stop_after))
 
 
 @run_app.command("mrclam")
@@ -371,6 +491,10 @@ def run_mrclam(
     checkpoint_every: int = typer.Option(10, "--checkpoint-every", min=1, help="Take the full estimate every N "
                                          "steps for the robot's NEES over time."),
     progress: Optional[bool] = PROGRESS_OPTION,
+    checkpoint: Optional[Path] = CHECKPOINT_OPTION,
+    checkpoint_interval: int = CHECKPOINT_INTERVAL_OPTION,
+    resume: Optional[Path] = RESUME_OPTION,
+    stop_after: Optional[int] = STOP_AFTER_OPTION,
 ) -> None:
     """SLAM on UTIAS MR.CLAM dataset 2: 15 barcoded landmarks, Vicon ground truth.
 
@@ -389,7 +513,8 @@ def run_mrclam(
     except ValueError as error:
         _fail(str(error))
     _run_dataset(f"MR.CLAM robot {robot}", dataset.steps, cfg, filter, output, max_steps, plots, progress,
-                 truth=dataset, checkpoint_every=checkpoint_every)
+                 truth=dataset, checkpoint_every=checkpoint_every,
+                 saving=_Saving(checkpoint, checkpoint_interval, resume, stop_after))
 
 
 @app.command()
@@ -445,9 +570,9 @@ def montecarlo(
     summary = experiments.summary(result)
     try:
         experiments.write_rows(result.rows, output / "runs.csv")
-        np.savez_compressed(output / "curves.npz", **{
-            f"{r.spec.scenario}/{r.spec.filter}/{r.spec.seed}/{name}": values
-            for r in result.results for name, values in r.curves.items()})
+        curves: Dict[str, Any] = {f"{r.spec.scenario}/{r.spec.filter}/{r.spec.seed}/{name}": values
+                                  for r in result.results for name, values in r.curves.items()}
+        np.savez_compressed(output / "curves.npz", **curves)
         (output / "summary.json").write_text(json.dumps(_plain(summary), indent=1) + "\n")
         if plots:
             for name in dict.fromkeys(scenario):

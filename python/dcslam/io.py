@@ -7,12 +7,17 @@
 - The map with its full covariance as ``.npz`` (``robot``, ``landmarks``, ``landmark_ids``,
   ``covariance``).
 - Run statistics as JSON.
+- A run's checkpoint (``dcslam run --checkpoint``): any picklable value, such as
+  :class:`~dcslam.pipeline.PipelineProgress`, behind a header that marks the file as one.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import pickle
+import warnings
 from typing import Any, Dict, Optional, Tuple, Union
 
 import numpy as np
@@ -27,6 +32,8 @@ __all__ = [
     "save_map",
     "load_map",
     "write_stats_json",
+    "write_run_checkpoint",
+    "read_run_checkpoint",
     "pose_to_se3",
     "yaw_quaternion",
 ]
@@ -59,6 +66,19 @@ def pose_to_se3(poses) -> np.ndarray:
     return transforms
 
 
+def _rows(path: PathLike, columns: int, format_name: str) -> np.ndarray:
+    """The numbers of a trajectory file, ``columns`` a line; (0, columns) for a file without
+    poses (e.g. a map-refit trajectory where no step saw enough mapped landmarks)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "loadtxt: input contained no data")
+        rows = np.loadtxt(path, ndmin=2)
+    if rows.size == 0:
+        return np.zeros((0, columns))
+    if rows.shape[1] != columns:
+        raise ValueError(f"{os.fspath(path)}: {format_name} lines have {columns} numbers, found {rows.shape[1]}")
+    return rows
+
+
 def write_tum(path: PathLike, timestamps, poses) -> None:
     """Writes ``t x y z qx qy qz qw`` per pose (z = 0, yaw quaternion)."""
     poses = _poses(poses)
@@ -74,9 +94,7 @@ def read_tum(path: PathLike) -> Tuple[np.ndarray, np.ndarray]:
 
     The heading is the quaternion's rotation about z (tilt, if any, is ignored).
     """
-    rows = np.loadtxt(path, ndmin=2)
-    if rows.shape[1] != 8:
-        raise ValueError(f"{os.fspath(path)}: TUM lines have 8 numbers, found {rows.shape[1]}")
+    rows = _rows(path, 8, "TUM")
     qx, qy, qz, qw = rows[:, 4:].T
     yaw = np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy**2 + qz**2))
     return rows[:, 0], np.column_stack([rows[:, 1], rows[:, 2], yaw])
@@ -90,9 +108,7 @@ def write_kitti(path: PathLike, poses) -> None:
 
 def read_kitti(path: PathLike) -> np.ndarray:
     """Reads a KITTI trajectory of planar poses; returns (k, 3) x, y, phi."""
-    rows = np.loadtxt(path, ndmin=2)
-    if rows.shape[1] != 12:
-        raise ValueError(f"{os.fspath(path)}: KITTI lines have 12 numbers, found {rows.shape[1]}")
+    rows = _rows(path, 12, "KITTI")
     matrices = rows.reshape(-1, 3, 4)
     return np.column_stack([matrices[:, 0, 3], matrices[:, 1, 3], np.arctan2(matrices[:, 1, 0], matrices[:, 0, 0])])
 
@@ -159,3 +175,49 @@ def write_stats_json(path: PathLike, result, extra: Optional[Dict[str, Any]] = N
     with open(path, "w", encoding="utf-8") as out:
         json.dump(_plain(document), out, indent=1)
         out.write("\n")
+
+
+# The first line of a checkpoint file; the number is the layout of what follows: the SHA-256
+# of the pickle (hex, one line), then the pickle.
+_CHECKPOINT_HEADER = b"dcslam run checkpoint 1\n"
+
+
+def write_run_checkpoint(path: PathLike, value: Any) -> None:
+    """Pickles ``value`` into ``path`` behind a header line and the pickle's SHA-256. The file
+    is written beside ``path`` and renamed over it, so that a run killed while writing leaves
+    the previous checkpoint whole."""
+    payload = pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
+    path = os.fspath(path)
+    temporary = path + ".partial"
+    with open(temporary, "wb") as out:
+        out.write(_CHECKPOINT_HEADER + hashlib.sha256(payload).hexdigest().encode() + b"\n" + payload)
+    os.replace(temporary, path)
+
+
+def read_run_checkpoint(path: PathLike) -> Any:
+    """Reads what :func:`write_run_checkpoint` wrote. A checkpoint is a pickle: read only
+    files you trust (your own runs'), as with any pickle; the checksum guards against damage,
+    not against a forged file.
+
+    Raises:
+        OSError: the file cannot be read (e.g. it does not exist).
+        ValueError: the file is not a dcslam checkpoint, is of another layout, or is damaged
+            (truncated, or any byte changed); the message names the file.
+    """
+    name = os.fspath(path)
+    with open(path, "rb") as file:
+        header = file.readline()
+        if header != _CHECKPOINT_HEADER:
+            if header.startswith(_CHECKPOINT_HEADER[:-3]):
+                raise ValueError(f"{name}: a dcslam checkpoint of another layout "
+                                 f"({header.strip().decode(errors='replace')!r}); this version reads "
+                                 f"{_CHECKPOINT_HEADER.strip().decode()!r}")
+            raise ValueError(f"{name}: not a dcslam checkpoint")
+        digest = file.readline().strip()
+        payload = file.read()
+    if hashlib.sha256(payload).hexdigest().encode() != digest:
+        raise ValueError(f"{name}: damaged checkpoint (truncated or changed: its checksum does not match)")
+    try:
+        return pickle.loads(payload)
+    except Exception as error:  # unpickling raises many types; after the checksum, e.g. a missing module
+        raise ValueError(f"{name}: cannot load the checkpoint ({type(error).__name__}: {error})") from None

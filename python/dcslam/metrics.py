@@ -12,7 +12,7 @@ same run are the same map. Scores against a simulator's ground truth are in
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence, Tuple
 
 import numpy as np
 
@@ -167,7 +167,8 @@ def gps_alignment(timestamps, trajectory, gps, max_speed: float = 20.0) -> GpsAl
     )
 
 
-def map_trajectory(result: PipelineResult, dataset_steps: Sequence[Any], min_landmarks: int = 3):
+def map_trajectory(result: PipelineResult, dataset_steps: Sequence[Any],
+                   min_landmarks: int = 3) -> Tuple[np.ndarray, np.ndarray]:
     """Each step's robot pose re-estimated from the final map.
 
     A filter's own trajectory is what it knew at each step. For the EKF that is the

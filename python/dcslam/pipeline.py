@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import time
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any, Callable, Dict, List, Optional, Sequence
 
 import numpy as np
 
@@ -23,7 +23,7 @@ from .config import SlamConfig
 from .metrics import *  # noqa: F401,F403
 from .slam import DCSlam, DCSlamStats, EkfSlam, Estimate, SlamFilter, SlamStats
 
-__all__ = ["FILTERS", "PipelineResult", "RobotCheckpoints", "SlamPipeline", *_metrics.__all__]
+__all__ = ["FILTERS", "PipelineProgress", "PipelineResult", "RobotCheckpoints", "SlamPipeline", *_metrics.__all__]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,6 +43,37 @@ class RobotCheckpoints:
     covariance: np.ndarray
 
 FILTERS = {"dc": DCSlam, "ekf": EkfSlam}
+
+
+@dataclasses.dataclass(frozen=True)
+class PipelineProgress:
+    """A :class:`SlamPipeline`'s run after its first ``steps_done`` steps: what a pipeline
+    built with ``resume=`` needs to go on and end bitwise as the run never stopped would.
+    It pickles (the filter as its versioned checkpoint; ``dcslam run --checkpoint`` writes it).
+
+    Attributes:
+        filter_name, config, step_count: the run it belongs to (checked on resume).
+        steps_done: steps already run (``step_count``: every step; only the final estimate
+            is left).
+        slam: the filter after those steps (the pipeline's own object, not a copy: pickle it
+            before the next step to keep this point).
+        timestamps, trajectory: (steps_done,) and (steps_done, 3), as in
+            :class:`PipelineResult`.
+        returned_ids: the ids each step's ``update`` returned (not yet resolved).
+        checkpoints: (steps, robot, robot covariance) of the robot checkpoints taken so far.
+        wall_seconds: wall time spent so far, in every process the run went through.
+    """
+
+    filter_name: str
+    config: SlamConfig
+    step_count: int
+    steps_done: int
+    slam: SlamFilter
+    timestamps: np.ndarray
+    trajectory: np.ndarray
+    returned_ids: List[np.ndarray]
+    checkpoints: List[tuple]
+    wall_seconds: float
 
 
 @dataclasses.dataclass(frozen=True)
@@ -149,10 +180,13 @@ class SlamPipeline:
         checkpoint_every: take the full estimate every this many steps (and after the last)
             and keep its robot and covariance (``result.checkpoints``); ``None``: never. Its
             time (the estimate's) counts in ``wall_seconds`` but not in the filter's steps.
+        resume: a :class:`PipelineProgress` of the same run (same filter, options and
+            number of steps) to go on from, instead of a new filter.
 
     Raises:
         ValueError: unknown filter name, or options the filter refuses (raised when the
-            filter is built, before any step runs).
+            filter is built, before any step runs); a ``resume`` of another run (the
+            message names what differs).
     """
 
     def __init__(
@@ -165,6 +199,7 @@ class SlamPipeline:
         progress: bool = False,
         description: Optional[str] = None,
         checkpoint_every: Optional[int] = None,
+        resume: Optional[PipelineProgress] = None,
     ):
         if filter not in FILTERS:
             raise ValueError(f"SlamPipeline: filter must be one of {', '.join(FILTERS)}, got {filter!r}")
@@ -180,28 +215,67 @@ class SlamPipeline:
         self.ids_field = ids_field
         self.progress = progress
         self.description = description or f"{filter} SLAM"
-        # Built here so that refused options fail before a long run starts.
-        self.slam: SlamFilter = FILTERS[filter](cfg)
-        self._ran = False
+        if resume is not None:
+            theirs = (resume.filter_name, resume.step_count, resume.config)
+            for what, mine, other in zip(("filter", "number of steps", "options"),
+                                         (filter, self.step_count, cfg), theirs):
+                if mine != other:
+                    raise ValueError(f"SlamPipeline: resume is of another run: its {what} "
+                                     f"{_difference(other, mine)}")
+            self.slam: SlamFilter = resume.slam
+        else:
+            # Built here so that refused options fail before a long run starts.
+            self.slam = FILTERS[filter](cfg)
+        self._finished = False
+        # The run so far (from resume, or empty), grown by run_steps().
+        self._timestamps = np.empty(self.step_count)
+        self._trajectory = np.empty((self.step_count, 3))
+        self._returned_ids: List[np.ndarray] = []
+        self._checkpoints: List[tuple] = []
+        self._done, self._wall_seconds = 0, 0.0
+        if resume is not None:
+            self._done, self._wall_seconds = resume.steps_done, resume.wall_seconds
+            self._timestamps[:self._done], self._trajectory[:self._done] = resume.timestamps, resume.trajectory
+            self._returned_ids, self._checkpoints = list(resume.returned_ids), list(resume.checkpoints)
 
-    def run(self) -> PipelineResult:
-        """Runs every step, then takes the final estimate.
+    def snapshot(self) -> PipelineProgress:
+        """The run so far (copies, except the filter itself)."""
+        done = self._done
+        return PipelineProgress(
+            filter_name=self.filter_name, config=self.config, step_count=self.step_count, steps_done=done,
+            slam=self.slam, timestamps=self._timestamps[:done].copy(), trajectory=self._trajectory[:done].copy(),
+            returned_ids=list(self._returned_ids), checkpoints=list(self._checkpoints),
+            wall_seconds=self._wall_seconds)
+
+    def run_steps(self, until: int, save: Optional[Callable[[PipelineProgress], None]] = None,
+                  save_every: Optional[int] = None) -> PipelineProgress:
+        """Runs the steps not done yet up to step ``until`` (at most every step), without the
+        final estimate; :meth:`run` or another ``run_steps`` goes on from there.
+
+        Args:
+            until: number of the run's steps done when it returns.
+            save: called with :meth:`snapshot` after every ``save_every``-th step (counted
+                from the run's first step) and when it returns; e.g. to pickle it to a file.
+            save_every: see ``save`` (None: only when it returns).
+
+        Returns:
+            :meth:`snapshot`.
 
         Raises:
-            RuntimeError: when called a second time (the filter already holds the run).
+            RuntimeError: after :meth:`run` (the filter already holds the whole run).
         """
-        if self._ran:
-            raise RuntimeError("SlamPipeline.run: this pipeline already ran; build a new one")
-        self._ran = True
+        if self._finished:
+            raise RuntimeError("SlamPipeline: this pipeline already ran; build a new one")
+        if save_every is not None and save_every < 1:
+            raise ValueError(f"SlamPipeline: save_every must be >= 1, got {save_every}")
         slam = self.slam
         use_ids = self.config.association == "known"
-        timestamps = np.empty(self.step_count)
-        trajectory = np.empty((self.step_count, 3))
-        returned_ids = []
-        checkpoints: List[tuple] = []
+        timestamps, trajectory = self._timestamps, self._trajectory
+        returned_ids, checkpoints = self._returned_ids, self._checkpoints
+        first, last = self._done, max(self._done, min(until, self.step_count))
         started = time.perf_counter()
-        with _progress_bar(self.progress, self.description, self.step_count) as advance:
-            for k in range(self.step_count):
+        with _progress_bar(self.progress, self.description, last - first) as advance:
+            for k in range(first, last):
                 step = self.dataset_steps[k]
                 slam.predict(step.u, step.Q)
                 ids = getattr(step, self.ids_field) if use_ids else None
@@ -212,7 +286,30 @@ class SlamPipeline:
                 if self.checkpoint_every and ((k + 1) % self.checkpoint_every == 0 or k + 1 == self.step_count):
                     full = slam.estimate()
                     checkpoints.append((k + 1, full.robot, full.covariance[:3, :3]))
+                if save is not None and save_every and (k + 1) % save_every == 0 and k + 1 < last:
+                    self._done = k + 1
+                    self._wall_seconds += time.perf_counter() - started
+                    started = time.perf_counter()
+                    save(self.snapshot())
                 advance()
+        self._done = last
+        self._wall_seconds += time.perf_counter() - started
+        progress = self.snapshot()
+        if save is not None:
+            save(progress)
+        return progress
+
+    def run(self, save: Optional[Callable[[PipelineProgress], None]] = None,
+            save_every: Optional[int] = None) -> PipelineResult:
+        """Runs every step not done yet (from where ``resume`` or :meth:`run_steps` stood),
+        then takes the final estimate. ``save`` and ``save_every``: as in :meth:`run_steps`.
+
+        Raises:
+            RuntimeError: when called a second time (the filter already holds the run).
+        """
+        self.run_steps(self.step_count, save, save_every)
+        self._finished = True
+        slam = self.slam
         estimate_started = time.perf_counter()
         if isinstance(slam, DCSlam):
             # Joins still queued at the end (their deadlines lie past the last step) are run
@@ -221,6 +318,7 @@ class SlamPipeline:
             slam.finish_joins()
         estimate = slam.estimate()
         finished = time.perf_counter()
+        returned_ids = self._returned_ids
         counts = [len(ids) for ids in returned_ids]
         resolved = slam.resolve(np.concatenate(returned_ids)) if counts else np.empty(0, np.int64)
         measurement_ids = np.split(resolved, np.cumsum(counts)[:-1]) if counts else []
@@ -228,14 +326,23 @@ class SlamPipeline:
             filter_name=self.filter_name,
             config=self.config,
             estimate=estimate,
-            timestamps=timestamps,
-            trajectory=trajectory,
+            timestamps=self._timestamps,
+            trajectory=self._trajectory,
             measurement_ids=measurement_ids,
             stats=slam.stats,
             estimate_seconds=finished - estimate_started,
-            wall_seconds=finished - started,
-            checkpoints=_checkpoints(checkpoints) if self.checkpoint_every else None,
+            wall_seconds=self._wall_seconds + finished - estimate_started,
+            checkpoints=_checkpoints(self._checkpoints) if self.checkpoint_every else None,
         )
+
+
+def _difference(theirs: Any, mine: Any) -> str:
+    """'is X, this run's Y', or for two configs the first field that differs."""
+    if isinstance(theirs, SlamConfig) and isinstance(mine, SlamConfig):
+        for field in dataclasses.fields(SlamConfig):
+            if getattr(theirs, field.name) != getattr(mine, field.name):
+                return f"{field.name} is {getattr(theirs, field.name)!r}, this run's {getattr(mine, field.name)!r}"
+    return f"is {theirs!r}, this run's {mine!r}"
 
 
 def _checkpoints(rows: List[tuple]) -> RobotCheckpoints:

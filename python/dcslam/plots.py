@@ -6,7 +6,7 @@ matplotlib with the Agg backend: files only, no display needed.
 from __future__ import annotations
 
 import os
-from typing import Optional, Sequence, Union
+from typing import Optional, Sequence, Tuple, Union
 
 import matplotlib
 
@@ -18,6 +18,7 @@ from matplotlib.collections import EllipseCollection  # noqa: E402
 
 from .metrics import GpsAlignment  # noqa: E402
 from .pipeline import PipelineResult  # noqa: E402
+from .slam import Estimate  # noqa: E402
 
 __all__ = ["CHI2_2DOF_95", "landmark_blocks", "landmark_ellipses", "plot_map", "plot_timing"]
 
@@ -58,22 +59,54 @@ def landmark_ellipses(blocks, quantile: float = CHI2_2DOF_95):
     return widths, heights, angles
 
 
+def _truth_arrays(truth) -> Tuple[np.ndarray, np.ndarray]:
+    """(poses (k, 3), landmarks (N, 2)) of a simulation (``poses``, ``landmarks``) or of a
+    dataset with ground truth such as :func:`dcslam.datasets.mrclam`'s (``poses_true``,
+    ``landmarks_true``)."""
+    for poses_name, landmarks_name in (("poses_true", "landmarks_true"), ("poses", "landmarks")):
+        if hasattr(truth, poses_name) and hasattr(truth, landmarks_name):
+            return getattr(truth, poses_name), getattr(truth, landmarks_name)
+    raise ValueError(f"plot_map: truth must be a Simulation or a dataset with poses_true and landmarks_true, "
+                     f"got {type(truth).__name__}")
+
+
+def _points(values, name: str, columns: int) -> np.ndarray:
+    """``values`` as a finite (k, >= columns) float array, or a ValueError naming it."""
+    try:
+        array = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"plot_map: {name} must be an array of numbers, got {type(values).__name__}") from None
+    if array.ndim != 2 or array.shape[1] < columns:
+        raise ValueError(f"plot_map: {name} must have shape (k, {columns}{'+' if columns < 3 else ''}), "
+                         f"got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"plot_map: {name} contains a non-finite value")
+    return array
+
+
 def plot_map(
-    result: PipelineResult,
+    estimate: Union[Estimate, PipelineResult],
     path: PathLike,
     gps=None,
     alignment: Optional[GpsAlignment] = None,
     title: Optional[str] = None,
     truth_poses=None,
     truth_landmarks=None,
+    *,
+    truth=None,
+    trajectory=None,
 ) -> None:
-    """The map with the 95 % ellipse of every landmark and the trajectory (Fig. 5).
+    """The map with the 95 % ellipse of every landmark and of the robot, the robot and its
+    trajectory (Fig. 5).
 
-    A D&C run with ``keep_local_map_poses`` also draws its past poses (the robot at each
-    local map's end) as triangles, as the paper's Fig. 5 draws D&C's vehicle locations.
+    Takes any :class:`~dcslam.Estimate` (``slam.estimate()`` after a loop of your own, or
+    :func:`dcslam.io.load_map`'s) or a whole run (:class:`~dcslam.pipeline.PipelineResult`,
+    whose trajectory and filter name it uses). Past poses (a D&C run with
+    ``keep_local_map_poses``: the robot at each local map's end) are drawn as triangles, as
+    the paper's Fig. 5 draws D&C's vehicle locations.
 
     Args:
-        result: the run.
+        estimate: the map, or the run.
         path: PNG file to write.
         gps: (k, 2) GPS positions to draw (e.g. ``alignment.gps_used``), or None.
         alignment: when given, the map and trajectory are moved into the GPS frame with it;
@@ -81,32 +114,71 @@ def plot_map(
         title: figure title (default: filter name, steps, map size).
         truth_poses, truth_landmarks: (k, 2+) true trajectory and (N, 2) true landmarks to
             draw, in the frame of the first pose (not moved by ``alignment``), or None.
+        truth: a :class:`~dcslam.Simulation` (``poses``, ``landmarks``) or a dataset with
+            ground truth (``poses_true``, ``landmarks_true``, e.g.
+            :func:`dcslam.datasets.mrclam`'s) to draw instead of ``truth_poses`` and
+            ``truth_landmarks``. With a ``PipelineResult`` the true trajectory is cut to the
+            run's steps; with an ``Estimate`` it is drawn whole (pass ``truth_poses=
+            sim.poses[:k + 1]`` for the first k steps).
+        trajectory: (k, 2+) the robot's path to draw with an ``Estimate`` (e.g. the poses
+            :meth:`~dcslam.SlamFilter.pose` gave, or ``BatchResult.trajectory``); a
+            ``PipelineResult`` brings its own.
+
+    Raises:
+        ValueError: ``estimate`` is neither an ``Estimate`` nor a ``PipelineResult``, its
+            covariance does not match its landmarks, ``truth`` has no truth, ``truth`` is
+            given with ``truth_poses`` or ``truth_landmarks``, or an array has a wrong shape
+            or a non-finite value (the message names it).
     """
-    estimate = result.estimate
+    if isinstance(estimate, PipelineResult):
+        if trajectory is not None:
+            raise ValueError("plot_map: a PipelineResult brings its own trajectory; pass trajectory= only with an Estimate")
+        result: Optional[PipelineResult] = estimate
+        trajectory = estimate.trajectory
+        estimate = estimate.estimate
+    elif isinstance(estimate, Estimate):
+        result = None
+    else:
+        raise ValueError(f"plot_map: estimate must be a dcslam.Estimate or a PipelineResult, got {type(estimate).__name__}")
+    if truth is not None:
+        if truth_poses is not None or truth_landmarks is not None:
+            raise ValueError("plot_map: give truth= or truth_poses=/truth_landmarks=, not both")
+        truth_poses, truth_landmarks = _truth_arrays(truth)
+        if result is not None:
+            truth_poses = truth_poses[:result.steps + 1]
     n = len(estimate.landmarks)
-    landmarks = estimate.landmarks
-    blocks = landmark_blocks(estimate.covariance, n)
-    trajectory = result.trajectory
-    robot = estimate.robot.reshape(1, 3)
+    landmarks = _points(estimate.landmarks, "estimate.landmarks", 2)
+    covariance = np.asarray(estimate.covariance, dtype=float)
+    if covariance.shape != (3 + 2 * n, 3 + 2 * n):
+        raise ValueError(f"plot_map: estimate.covariance must be ({3 + 2 * n}, {3 + 2 * n}) for {n} landmarks, "
+                         f"got {covariance.shape}")
+    blocks = landmark_blocks(covariance, n)
+    robot_block = covariance[:2, :2].reshape(1, 2, 2)
+    trajectory = np.zeros((0, 3)) if trajectory is None else _points(trajectory, "trajectory", 2)
+    robot = _points(np.reshape(estimate.robot, (1, -1)), "estimate.robot", 3)
     past_poses = np.asarray(estimate.past_poses, dtype=float).reshape(-1, 3)
+    if truth_poses is not None:
+        truth_poses = _points(truth_poses, "truth poses", 2)
+    if truth_landmarks is not None:
+        truth_landmarks = _points(truth_landmarks, "truth landmarks", 2)
     if alignment is not None:
         landmarks = alignment.apply(landmarks) if n else landmarks
         blocks = alignment.apply_covariance(blocks)
-        trajectory = alignment.apply_poses(trajectory) if len(trajectory) else trajectory
+        robot_block = alignment.apply_covariance(robot_block)
+        trajectory = alignment.apply(trajectory[:, :2]) if len(trajectory) else trajectory
         robot = alignment.apply_poses(robot)
         past_poses = alignment.apply_poses(past_poses) if len(past_poses) else past_poses
     widths, heights, angles = landmark_ellipses(blocks)
+    robot_ellipse = landmark_ellipses(robot_block)
 
     figure, axes = plt.subplots(figsize=(10, 8), dpi=120)
     if gps is not None and len(gps):
         gps = np.asarray(gps, dtype=float)
         axes.plot(gps[:, 0], gps[:, 1], ".", color="tab:green", markersize=2, alpha=0.6, label="GPS")
     if truth_poses is not None and len(truth_poses):
-        truth_poses = np.asarray(truth_poses, dtype=float)
         axes.plot(truth_poses[:, 0], truth_poses[:, 1], "-", color="tab:green", linewidth=0.8, alpha=0.8,
                   label="true trajectory")
     if truth_landmarks is not None and len(truth_landmarks):
-        truth_landmarks = np.asarray(truth_landmarks, dtype=float)
         axes.plot(truth_landmarks[:, 0], truth_landmarks[:, 1], "x", color="tab:green", markersize=7,
                   linestyle="none", label=f"true landmarks ({len(truth_landmarks)})")
     if len(trajectory):
@@ -121,14 +193,20 @@ def plot_map(
     if len(past_poses):
         axes.plot(past_poses[:, 0], past_poses[:, 1], "^", color="tab:red", markersize=4,
                   linestyle="none", label=f"robot at local-map boundaries ({len(past_poses)})")
+    axes.add_collection(EllipseCollection(*robot_ellipse, units="xy", offsets=robot[:, :2],
+                                          offset_transform=axes.transData, facecolors="none",
+                                          edgecolors="tab:red", linewidths=0.9))
     axes.plot(robot[0, 0], robot[0, 1], marker=(3, 0, np.degrees(robot[0, 2]) - 90), color="tab:red",
-              markersize=9, linestyle="none", label="final robot pose")
+              markersize=9, linestyle="none", label="robot with its 95 % ellipse")
     axes.set_aspect("equal", adjustable="datalim")
     axes.set_xlabel("x [m]" + (" (GPS frame; map and trajectory rigidly aligned to GPS)" if alignment is not None else ""))
     axes.set_ylabel("y [m]")
     axes.grid(True, linewidth=0.3)
-    label = FILTER_LABELS.get(result.filter_name, result.filter_name)
-    default_title = f"{label}: {result.steps} steps, {n} landmarks"
+    if result is not None:
+        label = FILTER_LABELS.get(result.filter_name, result.filter_name)
+        default_title = f"{label}: {result.steps} steps, {n} landmarks"
+    else:
+        default_title = f"Map: {n} landmarks"
     if alignment is not None:
         default_title += f", GPS RMS {alignment.rms:.2f} m"
     axes.set_title(title or default_title)

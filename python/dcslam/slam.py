@@ -1,7 +1,8 @@
 """SLAM filters: the shared :class:`SlamFilter` surface and the sparse-aware :class:`EkfSlam`.
 
 Both wrap a compiled filter (``dcslam._core``); Python crosses into C++ once per call, and
-the GIL is released while C++ works (docs/design.md §9). A filter object is not thread-safe: call
+the GIL is released while C++ works (``predict`` and ``update``: when another Python thread
+exists; docs/design.md §9). A filter object is not thread-safe: call
 it from one thread at a time.
 """
 
@@ -144,11 +145,33 @@ class SlamFilter:
     """The interface of :class:`EkfSlam` and :class:`~dcslam.DCSlam` (docs/api.md).
 
     Subclasses build the compiled filter and pass it to ``__init__``.
+
+    On an instance, ``predict``, ``update`` and ``pose`` are the compiled filter's own methods
+    (same arguments, checks and results as documented here): a Python method in between would
+    cost about 0.1 us a call, a sixth of the per-step crossing budget (BENCHMARKS.md, "Python
+    at native speed"). ``help(dcslam.DCSlam.update)`` shows the documentation.
     """
+
+    _DIRECT = ("predict", "update", "pose")
 
     def __init__(self, core: "_core.SlamFilter", config: SlamConfig):
         self._core = core
         self._config = config
+        self._bind_direct()
+
+    def _bind_direct(self) -> None:
+        # Instance attributes shadow the documented methods below (vars(): mypy would refuse
+        # assigning to a method); a method a subclass overrides is left to the subclass.
+        vars(self).update({name: getattr(self._core, name) for name in self._DIRECT
+                           if getattr(type(self), name) is getattr(SlamFilter, name)})
+
+    def __getstate__(self) -> Dict[str, Any]:
+        # Without the bound methods: a copy binds its own (deepcopy would keep the original's).
+        return {key: value for key, value in vars(self).items() if key not in self._DIRECT}
+
+    def __setstate__(self, state: Dict[str, Any]) -> None:
+        vars(self).update(state)
+        self._bind_direct()
 
     @property
     def config(self) -> SlamConfig:

@@ -53,6 +53,11 @@ def test_run_isam_writes_outputs(tmp_path):
         assert (tmp_path / f"map_{name}.png").stat().st_size > 0
     assert json.loads((tmp_path / "stats_dc.json").read_text())["summary"]["joins"] > 0
     assert (tmp_path / "timing.png").stat().st_size > 0
+    # This file's steps see at most 2 landmarks each: no step gets a map-refit pose, and the
+    # map-refit files are written without poses (test_cli_mrclam.py has them with poses).
+    for name in ("ekf", "dc"):
+        assert io.read_tum(tmp_path / f"trajectory_map_{name}.tum")[1].shape == (0, 3)
+        assert io.read_kitti(tmp_path / f"trajectory_map_{name}.kitti").shape == (0, 3)
 
 
 def test_run_isam_refuses_a_bad_file(tmp_path):

@@ -10,6 +10,8 @@ import numpy as np
 
 import dcslam
 from dcslam import io
+from dcslam.metrics import map_trajectory
+from dcslam.pipeline import SlamPipeline
 
 
 def run(*args):
@@ -34,6 +36,17 @@ def test_run_mrclam_writes_the_victoria_park_outputs_plus_the_truth(tmp_path):
         scores = stats["truth_scores"]
         assert scores["landmarks_scored"] > 0 and scores["ate_m"] >= 0 and scores["map_dof"] > 0
         assert (tmp_path / f"map_{name}.png").stat().st_size > 10_000
+        # the map-refit trajectory: the library's map_trajectory of the same (deterministic)
+        # run, read back from both files, and near the truth
+        result = SlamPipeline(data.steps, data.slam_config(), filter=name, max_steps=300).run()
+        times, poses = map_trajectory(result, data.steps)
+        t_map, map_poses = io.read_tum(tmp_path / f"trajectory_map_{name}.tum")
+        assert len(t_map) > 5 and np.all(np.isin(t_map, t_true))  # few steps see 3 landmarks here
+        np.testing.assert_allclose(t_map, times, atol=1e-9)
+        np.testing.assert_allclose(map_poses, poses, atol=1e-8)
+        np.testing.assert_allclose(io.read_kitti(tmp_path / f"trajectory_map_{name}.kitti"), poses, atol=1e-8)
+        truth_at = true_poses[np.searchsorted(t_true, t_map)]
+        assert np.median(np.hypot(*(map_poses[:, :2] - truth_at[:, :2]).T)) < 0.5
 
 
 def test_run_mrclam_without_ids_scores_the_association(tmp_path):

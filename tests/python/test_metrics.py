@@ -111,3 +111,41 @@ def test_the_metrics_are_still_importable_where_they_were():
     for name in dcslam.metrics.__all__:
         assert getattr(dcslam.pipeline, name) is getattr(dcslam.metrics, name)
     assert dcslam.gps_alignment is dcslam.metrics.gps_alignment
+
+
+def test_the_map_refit_of_an_exact_map_is_the_true_path_and_its_files_round_trip(tmp_path):
+    """Noise-free range-bearing scans from known poses, with an offset sensor, and a final map
+    equal to the true landmarks: the refit must give back the true poses; a step that sees
+    fewer than 3 mapped landmarks gets none. Written as TUM and KITTI, they read back."""
+    from types import SimpleNamespace
+
+    from dcslam import geometry, io
+
+    rng = np.random.default_rng(7)
+    landmarks = rng.uniform(-15, 15, size=(40, 2))
+    ids = np.arange(100, 140)
+    offset = (0.4, -0.1, 0.2)
+    k = np.arange(30)
+    true_poses = np.column_stack([10 * np.cos(0.1 * k), 10 * np.sin(0.1 * k), np.unwrap(0.1 * k + np.pi / 2)])
+    true_poses[:, 2] = np.arctan2(np.sin(true_poses[:, 2]), np.cos(true_poses[:, 2]))
+    steps, measurement_ids = [], []
+    for j, pose in enumerate(true_poses):
+        seen = [i for i in range(len(landmarks)) if np.hypot(*(landmarks[i] - pose[:2])) < (2.0 if j == 5 else 9.0)]
+        steps.append(SimpleNamespace(z=np.array([geometry.observe("range_bearing", offset, pose, landmarks[i])
+                                                 for i in seen]).reshape(-1, 2)))
+        measurement_ids.append(ids[seen])
+    assert len(measurement_ids[5]) < 3 and min(len(m) for j, m in enumerate(measurement_ids) if j != 5) >= 3
+    result = SimpleNamespace(config=dcslam.SlamConfig(observation="range_bearing", sensor_offset=offset),
+                             estimate=SimpleNamespace(landmarks=landmarks, landmark_ids=ids),
+                             measurement_ids=measurement_ids, timestamps=100.0 + 0.5 * k)
+    times, poses = map_trajectory(result, steps)
+    kept = k != 5
+    np.testing.assert_array_equal(times, 100.0 + 0.5 * k[kept])
+    np.testing.assert_allclose(poses[:, :2], true_poses[kept, :2], atol=1e-9)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (poses[:, 2] - true_poses[kept, 2]))), 0.0, atol=1e-9)
+    io.write_tum(tmp_path / "map.tum", times, poses)
+    io.write_kitti(tmp_path / "map.kitti", poses)
+    read_times, read_poses = io.read_tum(tmp_path / "map.tum")
+    np.testing.assert_allclose(read_times, times, atol=1e-9)
+    np.testing.assert_allclose(read_poses, poses, atol=1e-8)
+    np.testing.assert_allclose(io.read_kitti(tmp_path / "map.kitti"), poses, atol=1e-8)
