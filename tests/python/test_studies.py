@@ -60,6 +60,14 @@ def test_revisit_join_linearisation_on_small_loop_laps():
     assert all(int(row[-1]) < 40 for row in rows)
 
 
+def test_mrclam_association_on_the_bundled_robot():
+    printed = run_study("mrclam_association.py", "--robots", 1, "--settings", "0.99:0").stdout
+    rows = [line.split() for line in printed.splitlines() if line.strip()[:1].isdigit()]
+    assert [row[3] for row in rows] == ["EKF", "D&C"]
+    for row in rows:  # precision and recall are shares, features per landmark at least one
+        assert 0.0 <= float(row[4]) <= 1.0 and 0.0 <= float(row[5]) <= 1.0 and float(row[6]) >= 1.0
+
+
 def bench_run(filter_name, step_seconds, features=10, total_seconds=None):
     """One run of a hand-made ``dcslam_bench`` JSON output."""
     return {"steps": len(step_seconds), "filter": filter_name, "features": features,
