@@ -70,6 +70,8 @@ def test_a_pipeline_refuses_the_progress_of_another_run():
         SlamPipeline(steps, config, filter="ekf", resume=progress)
     with pytest.raises(ValueError, match="its number of steps is 30, this run's 20"):
         SlamPipeline(steps, config, filter="dc", max_steps=20, resume=progress)
+    with pytest.raises(ValueError, match="its checkpoint_every is None, this run's 5"):
+        SlamPipeline(steps, config, filter="dc", checkpoint_every=5, resume=progress)
     other = dcslam.SlamConfig(observation="point", association="known", join_association="known",
                               local_map_features=9)
     with pytest.raises(ValueError, match="its options local_map_features is 8, this run's 9"):
