@@ -52,7 +52,8 @@ class PipelineProgress:
     It pickles (the filter as its versioned checkpoint; ``dcslam run --checkpoint`` writes it).
 
     Attributes:
-        filter_name, config, step_count: the run it belongs to (checked on resume).
+        filter_name, config, step_count, checkpoint_every: the run it belongs to (checked
+            on resume).
         steps_done: steps already run (``step_count``: every step; only the final estimate
             is left).
         slam: the filter after those steps (the pipeline's own object, not a copy: pickle it
@@ -67,6 +68,7 @@ class PipelineProgress:
     filter_name: str
     config: SlamConfig
     step_count: int
+    checkpoint_every: Optional[int]
     steps_done: int
     slam: SlamFilter
     timestamps: np.ndarray
@@ -216,9 +218,9 @@ class SlamPipeline:
         self.progress = progress
         self.description = description or f"{filter} SLAM"
         if resume is not None:
-            theirs = (resume.filter_name, resume.step_count, resume.config)
-            for what, mine, other in zip(("filter", "number of steps", "options"),
-                                         (filter, self.step_count, cfg), theirs):
+            theirs = (resume.filter_name, resume.step_count, resume.checkpoint_every, resume.config)
+            for what, mine, other in zip(("filter", "number of steps", "checkpoint_every", "options"),
+                                         (filter, self.step_count, checkpoint_every, cfg), theirs):
                 if mine != other:
                     raise ValueError(f"SlamPipeline: resume is of another run: its {what} "
                                      f"{_difference(other, mine)}")
@@ -242,7 +244,8 @@ class SlamPipeline:
         """The run so far (copies, except the filter itself)."""
         done = self._done
         return PipelineProgress(
-            filter_name=self.filter_name, config=self.config, step_count=self.step_count, steps_done=done,
+            filter_name=self.filter_name, config=self.config, step_count=self.step_count,
+            checkpoint_every=self.checkpoint_every, steps_done=done,
             slam=self.slam, timestamps=self._timestamps[:done].copy(), trajectory=self._trajectory[:done].copy(),
             returned_ids=list(self._returned_ids), checkpoints=list(self._checkpoints),
             wall_seconds=self._wall_seconds)
