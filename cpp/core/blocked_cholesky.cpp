@@ -8,6 +8,23 @@ namespace dcslam {
 
 using Index = Eigen::Index;
 
+std::int64_t factor_panel(Eigen::MatrixXd& S, Index k0, Index width) {
+  const Index N = S.rows();
+  width = std::min(width, N - k0);
+  const Index below = N - k0 - width;
+  auto diagonal = S.block(k0, k0, width, width);
+  const Eigen::LLT<Eigen::MatrixXd> llt(diagonal);
+  if (llt.info() != Eigen::Success) return -1;
+  diagonal.triangularView<Eigen::Lower>() = llt.matrixL();
+  if (below > 0) {
+    auto panel = S.block(k0 + width, k0, below, width);
+    diagonal.triangularView<Eigen::Lower>().transpose().solveInPlace<Eigen::OnTheRight>(panel);
+    S.block(k0 + width, k0 + width, below, below).selfadjointView<Eigen::Lower>().rankUpdate(panel, -1.0);
+  }
+  const auto w = static_cast<std::int64_t>(width), b = static_cast<std::int64_t>(below);
+  return std::max<std::int64_t>(1, (b * b * w / 2 + b * w * w / 2 + w * w * w / 3) / 8);
+}
+
 ResumableCholesky::ResumableCholesky(Index size, Index panel_width, std::int64_t work_unit)
     : size_(size), panel_width_(std::max<Index>(1, panel_width)),
       work_unit_(std::max<std::int64_t>(1, work_unit)) {}

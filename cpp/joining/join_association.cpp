@@ -46,6 +46,19 @@ Mat2 JoinPairingModel::covariance(const Pairing& a, const Pairing& b) const {
   return covariance;
 }
 
+std::vector<std::pair<Index, Index>> associate_by_id(const GaussianMap& first,
+                                                     const GaussianMap& second) {
+  std::unordered_map<std::int64_t, Index> index_of;
+  index_of.reserve(first.ids().size());
+  for (std::size_t i = 0; i < first.ids().size(); ++i) index_of.emplace(first.ids()[i], i);
+  std::vector<std::pair<Index, Index>> pairs;
+  for (std::size_t j = 0; j < second.ids().size(); ++j) {
+    const auto it = index_of.find(second.ids()[j]);
+    if (it != index_of.end()) pairs.emplace_back(it->second, static_cast<Index>(j));
+  }
+  return pairs;
+}
+
 JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options) {
   JoinAssociator associator(frame, options);
   while (!associator.done()) associator.advance(std::numeric_limits<std::int64_t>::max());

@@ -7,6 +7,7 @@
 #include "dcslam/estimation/ekf_slam.hpp"
 #include "dcslam/association/jcbb.hpp"
 #include "dcslam/joining/join_association.hpp"
+#include "dcslam/joining/map_joining.hpp"
 #include "print_parameters.hpp"
 
 namespace dcslam {

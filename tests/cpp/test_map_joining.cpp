@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include "dcslam/core/errors.hpp"
+#include "dcslam/joining/join_association.hpp"
 #include "dcslam/joining/map_joining.hpp"
 #include "numeric_jacobian.hpp"
 

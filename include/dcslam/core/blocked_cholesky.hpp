@@ -1,15 +1,26 @@
 #pragma once
 // S = L L' of a symmetric positive definite matrix, in place in its lower triangle, as
-// resumable work (right-looking, blocked): a step either factors one panel's diagonal block
-// and solves the panel below it, or applies the panel to one tile of columns of the trailing
-// lower triangle. The panels and tiles depend only on the matrix size, the panel width and the
-// work unit, never on how the steps are spread over calls, so the factor is bitwise the same
-// however it is sliced (amortized D&C runs one step per frame when the budget is small).
+// resumable work (right-looking, blocked), at two granularities: factor_panel() does a panel
+// and its whole trailing update at once (the map join's constraints), ResumableCholesky splits
+// the trailing update into tiles (RJC's hypotheses). The two sum in different orders, so
+// serving both users with one would move the last bits of the other's results. In
+// ResumableCholesky a step either factors one panel's diagonal block and solves the panel
+// below it, or applies the panel to one tile of columns of the trailing lower triangle. The
+// panels and tiles depend only on the matrix size, the panel width and the work unit, never on
+// how the steps are spread over calls, so the factor is bitwise the same however it is sliced
+// (amortized D&C runs one step per frame when the budget is small).
 #include <cstdint>
 
 #include <Eigen/Core>
 
 namespace dcslam {
+
+// One panel [k0, k0 + width) of a right-looking blocked Cholesky factorisation S = L L', in
+// place in the lower triangle: factor the diagonal block, solve the panel below it, update the
+// whole trailing lower triangle at once. Panels in order give the same factor however they are
+// spread over calls. Returns the work in units of eight multiply-adds, or -1 if the diagonal
+// block is not positive definite (S is then left partly factored).
+std::int64_t factor_panel(Eigen::MatrixXd& S, Eigen::Index k0, Eigen::Index width);
 
 class ResumableCholesky {
  public:

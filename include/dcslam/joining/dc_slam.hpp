@@ -61,7 +61,7 @@ class DCSlam : public SlamFilter {
   std::vector<std::int64_t> update(const MeasurementsRef& z, const std::vector<Mat2>& R,
                                    const std::vector<std::int64_t>* landmark_ids) override;
   Estimate estimate() const override;
-  // A research instrument (JoinOracle in map_joining.hpp): every join, the real ones and the
+  // A research instrument (JoinOracle in join_options.hpp): every join, the real ones and the
   // estimate's, corrects its association with the truth. Only before the first predict().
   void set_join_oracle(std::shared_ptr<const JoinOracle> oracle);
   Vec3 pose() const override;

@@ -12,9 +12,12 @@
 #include <vector>
 
 #include "dcslam/association/jcbb.hpp"
-#include "dcslam/joining/map_joining.hpp"
 #include "dcslam/association/rjc.hpp"
+#include "dcslam/core/gaussian_map.hpp"
 #include "dcslam/core/spatial_hash.hpp"
+#include "dcslam/joining/join_frame.hpp"
+#include "dcslam/joining/join_options.hpp"
+#include "dcslam/joining/join_report.hpp"
 
 namespace dcslam {
 
@@ -42,6 +45,10 @@ struct JoinAssociationResult {
   // With a JoinOracle: the association's own pairs, before the oracle corrected them.
   std::vector<std::pair<Eigen::Index, Eigen::Index>> own_pairs;
 };
+
+// Pairs (i in m1, j in m2) of features with the same id ("known" association).
+std::vector<std::pair<Eigen::Index, Eigen::Index>> associate_by_id(const GaussianMap& first,
+                                                                   const GaussianMap& second);
 
 JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options);
 

@@ -1,0 +1,128 @@
+#include "dcslam/joining/join_fill.hpp"
+
+#include <algorithm>
+#include <utility>
+
+#include "dcslam/joining/join_cost.hpp"
+
+namespace dcslam {
+
+using Index = Eigen::Index;
+
+JoinFill::JoinFill(const GaussianMap& first, const GaussianMap& second, const JoinLayout& layout,
+                   const JoinOptions& options, const Mat2& rotation, Index pairs,
+                   LowRankCorrection correction, GaussianMap result)
+    : first_(first),
+      second_(second),
+      layout_(layout),
+      block_columns_(options.block_columns),
+      work_unit_(options.work_unit),
+      rotation_(rotation),
+      element_cost_(join_cost::fill_element(static_cast<std::int64_t>(pairs))),
+      correction_(std::move(correction)),
+      result_(std::move(result)) {}
+
+void JoinFill::write_moved_second_block(Index row_begin, Index rows, Index col_begin,
+                                       Index width, Index out_row, Index out_col) {
+  const auto P2 = second_.P();
+  const Index features_end = layout_.second_kept_features_end();
+  // J_2 mixes the x and y of a pair: where the block splits one, it is gathered widened by
+  // the missing partner, so tiles and column blocks may start and end anywhere.
+  const auto widened = [&](Index begin, Index size) {
+    return std::make_pair(begin - (second_role(begin, features_end) == SecondRole::Y ? 1 : 0),
+                          begin + size + (second_role(begin + size - 1, features_end) == SecondRole::X ? 1 : 0));
+  };
+  const auto [row0, row1] = widened(row_begin, rows);
+  const auto [col0, col1] = widened(col_begin, width);
+  scratch_.resize(row1 - row0, col1 - col0);
+  for (Index b = col0; b < col1; ++b) {
+    const Index src_col = layout_.second_kept_rows[static_cast<std::size_t>(b)];
+    for (Index a = row0; a < row1; ++a) {
+      scratch_(a - row0, b - col0) = P2(layout_.second_kept_rows[static_cast<std::size_t>(a)], src_col);
+    }
+  }
+  rotate_second_rows(scratch_, rotation_, row0, features_end);
+  rotate_second_columns(scratch_, rotation_, col0, features_end);
+  result_.P().block(out_row, out_col, rows, width) =
+      scratch_.block(row_begin - row0, col_begin - col0, rows, width);
+}
+
+void JoinFill::write_first_block(Index row_begin, Index rows, Index col_begin, Index width,
+                                Index out_row, Index out_col) {
+  const auto P1 = first_.P();
+  auto out = result_.P().block(out_row, out_col, rows, width);
+  for (Index b = 0; b < width; ++b) {
+    const Index src_col = layout_.first_kept_rows[static_cast<std::size_t>(col_begin + b)];
+    for (Index a = 0; a < rows; ++a) {
+      out(a, b) = P1(layout_.first_kept_rows[static_cast<std::size_t>(row_begin + a)], src_col);
+    }
+  }
+}
+
+// One block of columns [col, col + width) inside one segment: the lower part (rows >= col)
+// is computed as base + L N', then mirrored into the rows above the diagonal of later
+// columns. The base is a block of P1 or of J_2 P2 J_2' where rows and columns come from the
+// same map, 0 across the maps.
+std::int64_t JoinFill::fill_next_tile() {
+  const Index out_dim = result_.dim();
+  const Index k = static_cast<Index>(correction_.right_first.cols()) - 3;
+  const Index col = next_out_col_;
+  auto out = result_.P();
+  const JoinLayout::Segment& columns = layout_.segment_of(col);
+  const Index width = std::min(block_columns_, columns.out_begin + columns.size - col);
+  const Index local_col = columns.local_begin + (col - columns.out_begin);
+  // The block is written a tile of rows at a time, rows from the diagonal down: the tiles
+  // keep the block's width (so the GEMM streams the low-rank factor once per block, as
+  // unsliced) and bound a unit of work when r is large.
+  const Index row0 = next_fill_row_ > col ? next_fill_row_ : col;
+  const Index tile = join_cost::fill_tile_rows(work_unit_, width, k);
+  const Index row1 = std::min(out_dim, row0 + tile);
+  const Index rows = row1 - row0;
+  if (row0 == col && col > 0) {
+    // The rows above the diagonal are the earlier blocks' transposed. Written here, with the
+    // block, rather than by each earlier block into every later column: a fresh result's pages
+    // are then first touched a block at a time, not all in one unit of work.
+    // In square tiles: one long transposed copy runs at a fraction of the speed.
+    for (Index c0 = 0; c0 < col; c0 += block_columns_) {
+      const Index tile_width = std::min(block_columns_, col - c0);
+      out.block(c0, col, tile_width, width) = out.block(col, c0, width, tile_width).transpose();
+    }
+  }
+  for (const JoinLayout::Segment& segment : layout_.segments) {
+    const Index begin = std::max(row0, segment.out_begin);
+    const Index end = std::min(row1, segment.out_begin + segment.size);
+    if (begin >= end) continue;
+    const Index local_row = segment.local_begin + (begin - segment.out_begin);
+    if (segment.second != columns.second) {
+      out.block(begin, col, end - begin, width).setZero();
+    } else if (segment.second) {
+      write_moved_second_block(local_row, end - begin, local_col, width, begin, col);
+    } else {
+      write_first_block(local_row, end - begin, local_col, width, begin, col);
+    }
+  }
+  if (columns.second) {
+    out.block(row0, col, rows, width).noalias() +=
+        correction_.left.leftCols(3 + k).middleRows(row0, rows) *
+        correction_.right_second.middleRows(local_col, width).transpose();
+  } else {
+    out.block(row0, col, rows, width).noalias() +=
+        correction_.left.rightCols(3 + k).middleRows(row0, rows) *
+        correction_.right_first.middleRows(local_col, width).transpose();
+  }
+  if (row0 == col) {
+    // The diagonal square was computed whole, and base + L N' is symmetric only up to
+    // rounding there: its lower triangle, like every other entry below the diagonal, is the
+    // one kept, so that P is exactly symmetric (as the EKF keeps it).
+    auto diagonal = out.block(col, col, width, width);
+    diagonal.triangularView<Eigen::StrictlyUpper>() = diagonal.transpose();
+  }
+  next_fill_row_ = row1;
+  if (row1 == out_dim) {
+    next_out_col_ += width;
+    next_fill_row_ = 0;
+  }
+  return static_cast<std::int64_t>(rows) * width * element_cost_;
+}
+
+}  // namespace dcslam

@@ -1,0 +1,71 @@
+#pragma once
+// What a join is given besides its two maps (docs/design.md §4): the association mode and its
+// settings, the block and work-unit sizes of the resumable pass, the iterated join's
+// linearisation, past poses, and the research oracle.
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <unordered_map>
+
+#include <Eigen/Core>
+
+#include "dcslam/core/config.hpp"
+#include "dcslam/core/geometry.hpp"
+
+namespace dcslam {
+
+// A research instrument, never set in a real run: the landmark each feature id stands for
+// (from a simulator; < 0 for clutter) and how a join's decision is corrected with it, to
+// measure how far the join association is from what its two maps allow
+// (studies/join_association_ceiling.py, docs/data_association.md). The oracle pairing: each
+// feature of m2, in order, with the first unused feature of m1 of its landmark.
+struct JoinOracle {
+  enum class Mode {
+    Truth,            // the oracle pairing, whatever the gates say
+    AmongCandidates,  // the oracle pairing where it is among the individually compatible candidates
+    RemoveWrong,      // the association's own pairs, less those the oracle pairing does not hold
+    Audit,            // the association's own pairs, unchanged; the oracle pairing only audited
+  };
+  Mode mode = Mode::Truth;
+  std::unordered_map<std::int64_t, std::int64_t> landmark_of;
+  // The decision is corrected only at joins whose m1 holds between these many features (the
+  // others are audited and left as they are): to tell which joins' mistakes decide the map.
+  Eigen::Index min_first_features = 0;
+  Eigen::Index max_first_features = std::numeric_limits<Eigen::Index>::max();
+};
+
+// A linearisation point chosen outside the join (JoinTree::relinearise(), join_tree.hpp): R1
+// in m1's base and m2's state vector, as JoinFrame takes them. The join linearises ⊕ there
+// once, without Gauss–Newton steps of its own.
+struct JoinLinearisation {
+  Vec3 first_robot = Vec3::Zero();
+  Eigen::VectorXd second_x;
+};
+
+struct JoinOptions {
+  JoinAssociation association = JoinAssociation::Known;
+  double gate_confidence = 0.99;
+  double feature_sigma = 0.0;  // SlamConfig::join_feature_sigma
+  int rjc_b = 4;
+  double rjc_p_good = 0.8;
+  double rjc_p_fail = 0.01;
+  std::uint64_t seed = 0;
+  // Width of the column blocks the result is written in (and of the Cholesky panels).
+  Eigen::Index block_columns = 64;
+  // Multiply-adds that bound one unit of resumable work (rows of a fill tile, of the solve, of
+  // the assembly): small units keep amortized steps short when r is in the hundreds.
+  Eigen::Index work_unit = Eigen::Index{1} << 20;
+  // Linearisation points of the constraint update (Gauss–Newton steps of the iterated EKF,
+  // docs/divide_and_conquer.md): 1 linearises ⊕ once at the prior means (the one-shot join);
+  // more re-linearise at the constrained estimate until the step is negligible.
+  int max_iterations = 10;
+  // Set: ⊕ linearised at this point instead (max_iterations is then not used).
+  std::shared_ptr<const JoinLinearisation> linearisation;
+  // Keep R1 in the result as a past pose with id first_robot_id (a sparse trajectory at
+  // local-map boundaries, docs/design.md §4.5). Past poses the inputs hold are always kept.
+  bool keep_first_robot = false;
+  std::int64_t first_robot_id = -1;
+  std::shared_ptr<const JoinOracle> oracle;  // research only (JoinOracle); null in real runs
+};
+
+}  // namespace dcslam
