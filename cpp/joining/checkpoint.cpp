@@ -617,7 +617,7 @@ struct CheckpointAccess {
     if (f.join_oracle_) throw InvalidArgument("checkpoint: a DCSlam with a join oracle (a research instrument) is not saved");
     if (!f.join_failure_.empty()) {
       throw InvalidArgument("checkpoint: " + f.join_failure_ +
-                            "; not saved: the next call to the filter reports it and rolls the filter back");
+                            "; not saved: the next call to the filter reports it");
     }
     save_config(out, f.config_);
     save(out, *f.local_);

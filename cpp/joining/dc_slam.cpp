@@ -143,6 +143,7 @@ std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::ve
   // for the restore point. A closure needs as many features as local_map_features after the
   // update, and an update adds at most one feature per measurement: the copy (O(p^2) of the
   // local map's p) is only made on the last updates of a local map.
+  before_update_.local.reset();
   if (local_->map().num_features() + z.rows() >= config_.local_map_features && !stack_.empty() &&
       stack_.back()->leaves == 1) {
     before_update_.local = std::make_unique<EkfSlam>(*local_);
@@ -168,7 +169,6 @@ std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::ve
     std::unique_lock<std::mutex> lock(mutex_);
     raise_join_failure(lock);
   }
-  before_update_.local.reset();
   end_step(seconds_since(start));
   return ids;
 }

@@ -211,7 +211,9 @@ class SlamFilter:
             ValueError: a bad shape, dtype or value (:class:`dcslam.InvalidArgument`: a
                 non-finite or absurd number, an R that is not symmetric positive definite, ids
                 missing, refused, repeated in one scan or < -1), naming the argument and row;
-                the filter is left unchanged. For :class:`DCSlam`, also when a join failed
+                or a scan whose innovation covariance is not finite or not positive definite (a
+                known-id measurement of a feature at a predicted range of 1e-300, say); the
+                filter is left unchanged. For :class:`DCSlam`, also when a join failed
                 (this call ran it, or, threaded, the worker did): the message names the join and
                 the step whose update queued it, and the filter is back at its state just before
                 that update, every call since undone (docs/design.md §5.4).

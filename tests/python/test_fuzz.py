@@ -12,6 +12,7 @@ pytest run itself).
 from __future__ import annotations
 
 import gzip
+import os
 import re
 import shutil
 import traceback
@@ -264,7 +265,8 @@ def cli_bases(small_victoria_park, tmp_path_factory):
     isam = folder / "graph.txt"
     isam.write_bytes(isam_bytes(ISAM_LINES))
     (folder / "a_file").write_text("")
-    paths = {"{out}": str(folder / "out"), "{blocked}": str(folder / "a_file" / "out"), "{isam}": str(isam),
+    (folder / "cwd").mkdir()
+    paths = {"{cwd}": str(folder / "cwd"), "{out}": str(folder / "out"), "{blocked}": str(folder / "a_file" / "out"), "{isam}": str(isam),
              "{vp}": str(small_victoria_park)}
     bases = [["run", "isam", str(isam), "--output", paths["{out}"], "--no-plots", "--no-progress"],
              ["run", "victoria-park", "--data-dir", paths["{vp}"], "--output", paths["{out}"], "--no-plots",
@@ -289,7 +291,12 @@ def test_fuzzed_command_lines_end_in_a_short_error_or_a_run_never_a_traceback(cl
         if options[option] is not None:
             value = data.draw(st.sampled_from(CLI_VALUES + options[option] * 3), label=option)
             args.append(paths.get(value, value))
-    result = CliRunner().invoke(app, args)
+    here = os.getcwd()
+    os.chdir(paths["{cwd}"])  # a relative --output ("nan", "1") is written in a temporary folder
+    try:
+        result = CliRunner().invoke(app, args)
+    finally:
+        os.chdir(here)
     output = result.output
     event(f"exit {result.exit_code}" + (" (the app's own error)" if output.startswith("error:") else ""))
     assert result.exception is None or isinstance(result.exception, SystemExit), (

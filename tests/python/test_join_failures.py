@@ -242,3 +242,20 @@ def test_an_in_bounds_scan_that_makes_a_join_fail_is_rolled_back_too(amortize, t
     oracle = make(amortize, threaded)
     feed(oracle, 1)
     assert bitwise(slam.estimate(), oracle.estimate())
+
+
+def test_a_filter_resumed_while_the_failing_join_was_pending_reports_it_and_cannot_go_on():
+    # Checkpoints keep no restore point (docs/design.md §5.4): the failure is still named, and
+    # every later call raises it, rather than going on from a state no one asked for.
+    import pickle
+
+    slam = make(True, False)
+    for k, _, call in calls(run_steps()):
+        if k > SEEN_TWICE[1]:
+            break
+        call(slam)  # the premise: the failing join is still pending after the update that queued it
+    resumed = pickle.loads(pickle.dumps(slam))
+    with pytest.raises(dcslam.InvalidArgument, match=r"join 1 .*positive definite.*cannot go on \(it was resumed"):
+        resumed.finish_joins()
+    with pytest.raises(dcslam.InvalidArgument, match="cannot go on"):
+        resumed.estimate()

@@ -139,7 +139,6 @@ class DCSlam : public SlamFilter {
   // until every join the closure queued is complete (cheap when nothing fails: the stack's
   // maps are shared, not copied; see docs/design.md, "A failed join").
   struct RestorePoint {
-    std::int64_t step = 0;  // steps_ at the update
     int first_join = 0;     // the joins the closure queued: first_join .. joins_created - 1
     int joins_created = 0;  // of the filter, after the closure
     int incomplete = 0;     // of those joins
@@ -156,7 +155,7 @@ class DCSlam : public SlamFilter {
     JoinTree tree;
   };
   // The local map before an update that may close it (update()); moved into the restore point
-  // if it does.
+  // if it does, else dropped by the next update.
   struct BeforeUpdate {
     std::unique_ptr<EkfSlam> local;
     std::int64_t local_map_steps = 0, steps = 0;
