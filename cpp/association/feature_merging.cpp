@@ -20,8 +20,9 @@ Mat2 difference_covariance(const GaussianMap& map, Index a, Index b) {
 
 }  // namespace
 
-double feature_difference_distance_sq(const GaussianMap& map, Index a, Index b) {
-  const Eigen::LLT<Mat2> cholesky(difference_covariance(map, a, b));
+double feature_difference_distance_sq(const GaussianMap& map, Index a, Index b, double feature_sigma) {
+  const Mat2 tested = difference_covariance(map, a, b) + 2.0 * feature_sigma * feature_sigma * Mat2::Identity();
+  const Eigen::LLT<Mat2> cholesky(tested);
   if (cholesky.info() != Eigen::Success) return std::numeric_limits<double>::infinity();
   const Vec2 whitened = cholesky.matrixL().solve(map.feature(a) - map.feature(b));
   return whitened.squaredNorm();
@@ -43,13 +44,14 @@ bool impose_equal_features(GaussianMap& map, Index a, Index b) {
   return true;
 }
 
-Index merge_partner(const GaussianMap& map, Index k, double radius, double gate, const MayBeOneLandmark& may_be_one) {
+Index merge_partner(const GaussianMap& map, Index k, double radius, double gate, const MayBeOneLandmark& may_be_one,
+                    double feature_sigma) {
   const double radius_sq = radius * radius;
   const Vec2 position = map.feature(k);
   Index partner = -1;
   for (Index j = 0; j < map.num_features(); ++j) {
     if (j == k || (map.feature(j) - position).squaredNorm() > radius_sq) continue;
-    if (feature_difference_distance_sq(map, k, j) > gate || !may_be_one(k, j)) continue;
+    if (feature_difference_distance_sq(map, k, j, feature_sigma) > gate || !may_be_one(k, j)) continue;
     if (partner >= 0) return -1;
     partner = j;
   }
@@ -57,18 +59,19 @@ Index merge_partner(const GaussianMap& map, Index k, double radius, double gate,
 }
 
 std::vector<std::pair<std::int64_t, std::int64_t>> merge_duplicate_features(
-    GaussianMap& map, double radius, double gate, const MayBeOneLandmark& may_be_one, int max_rounds) {
+    GaussianMap& map, double radius, double gate, const MayBeOneLandmark& may_be_one, double feature_sigma,
+    int max_rounds) {
   std::vector<std::pair<std::int64_t, std::int64_t>> merged;
   for (int round = 0; round < max_rounds; ++round) {
     const Index n = map.num_features();
     std::vector<Index> partner(static_cast<std::size_t>(n));
-    for (Index k = 0; k < n; ++k) partner[static_cast<std::size_t>(k)] = merge_partner(map, k, radius, gate, may_be_one);
+    for (Index k = 0; k < n; ++k) partner[static_cast<std::size_t>(k)] = merge_partner(map, k, radius, gate, may_be_one, feature_sigma);
     std::vector<Index> dropped;
     for (Index k = 0; k < n; ++k) {
       const Index j = partner[static_cast<std::size_t>(k)];
       if (j <= k || partner[static_cast<std::size_t>(j)] != k) continue;
       // Earlier merges of this round moved both: the pair must still pass.
-      if (feature_difference_distance_sq(map, k, j) > gate) continue;
+      if (feature_difference_distance_sq(map, k, j, feature_sigma) > gate) continue;
       const bool k_older = map.ids()[static_cast<std::size_t>(k)] < map.ids()[static_cast<std::size_t>(j)];
       const Index keep = k_older ? k : j, drop = k_older ? j : k;
       if (!impose_equal_features(map, keep, drop)) continue;

@@ -636,8 +636,10 @@ void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, LeafSets& le
     const auto& ids = map.ids();
     return disjoint(leaves[ids[static_cast<std::size_t>(a)]], leaves[ids[static_cast<std::size_t>(b)]]);
   };
-  const auto merges =
-      merge_duplicate_features(map, config_.merge_radius, chi2_quantile(2, config_.gate_confidence), may_be_one);
+  // The pairs compared here come from disjoint local maps, as at a join: the join's model of
+  // each feature's own error (join_feature_sigma) applies to them too.
+  const auto merges = merge_duplicate_features(map, config_.merge_radius, chi2_quantile(2, config_.gate_confidence),
+                                               may_be_one, config_.join_feature_sigma);
   for (const auto& [from, to] : merges) {
     add_alias(aliases, from, to);
     merge_leaves(leaves, from, to);

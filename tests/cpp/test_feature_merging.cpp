@@ -104,6 +104,25 @@ TEST(FeatureMerging, MergesEveryMutuallyUniqueCompatiblePairAndNothingElse) {
   EXPECT_LT((map.P() - expected.P()).cwiseAbs().maxCoeff(), 1e-12);
 }
 
+// join_feature_sigma in the merge's test: 0.4 m apart with sigma 0.05 m each is D^2 = 32, no
+// merge; with an independent 0.1 m more on each feature S = 2 (0.05^2 + 0.1^2) I, D^2 = 6.4.
+TEST(FeatureMerging, FeatureSigmaWidensTheTestAndNotTheUpdate) {
+  const auto anything = [](Eigen::Index, Eigen::Index) { return true; };
+  GaussianMap map = independent_map({Vec2(0, 0), Vec2(0.4, 0)});
+  EXPECT_NEAR(feature_difference_distance_sq(map, 0, 1), 0.16 / (2 * 0.0025), 1e-9);
+  EXPECT_NEAR(feature_difference_distance_sq(map, 0, 1, 0.1), 0.16 / (2 * (0.0025 + 0.01)), 1e-9);
+  GaussianMap plain = map;
+  EXPECT_TRUE(merge_duplicate_features(plain, 2.0, 9.21, anything).empty());
+  GaussianMap expected = map;
+  const auto merged = merge_duplicate_features(map, 2.0, 9.21, anything, 0.1);
+  ASSERT_EQ(merged.size(), 1u);
+  // The merge itself is the exact f_10 = f_11 of the map's own covariance, as a join imposes it.
+  ASSERT_TRUE(impose_equal_features(expected, 0, 1));
+  expected.remove_features({1});
+  EXPECT_LT((map.x() - expected.x()).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT((map.P() - expected.P()).cwiseAbs().maxCoeff(), 1e-12);
+}
+
 // A feature with two compatible partners is left alone: no ambiguity is resolved by merging.
 TEST(FeatureMerging, AnAmbiguousPairIsNotMerged) {
   GaussianMap map = independent_map({Vec2(0, 0), Vec2(0.05, 0), Vec2(-0.05, 0)});

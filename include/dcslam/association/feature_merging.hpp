@@ -14,9 +14,12 @@
 
 namespace dcslam {
 
-// Mahalanobis distance^2 of f_a - f_b under its covariance P_aa + P_bb - P_ab - P_ba; infinity
-// when that covariance is not positive definite (the two are already one).
-double feature_difference_distance_sq(const GaussianMap& map, Eigen::Index a, Eigen::Index b);
+// Mahalanobis distance^2 of f_a - f_b under its covariance P_aa + P_bb - P_ab - P_ba, plus
+// 2 feature_sigma^2 I when each feature carries an independent error of that size that the
+// map does not hold (SlamConfig::join_feature_sigma, for features from different D&C local
+// maps); infinity when that covariance is not positive definite (the two are already one).
+double feature_difference_distance_sq(const GaussianMap& map, Eigen::Index a, Eigen::Index b,
+                                      double feature_sigma = 0.0);
 
 // The noise-free EKF update with h = f_a - f_b = 0: K = P H' S^-1 with P H' = P[:, a] - P[:, b]
 // and S = P_aa + P_bb - P_ab - P_ba; x <- x - K (f_a - f_b), P <- P - K S K'. Afterwards f_b
@@ -30,14 +33,16 @@ using MayBeOneLandmark = std::function<bool(Eigen::Index, Eigen::Index)>;
 
 // The one feature j != k of `map` that k may be a duplicate of: within `radius` of it, f_k - f_j
 // compatible with 0 (D^2 <= gate) and may_be_one(k, j); -1 when there is none or more than one
-// (no ambiguity to resolve, which is what a joint test would be for). O(n).
+// (no ambiguity to resolve, which is what a joint test would be for). The test adds
+// `feature_sigma` as feature_difference_distance_sq() does. O(n).
 Eigen::Index merge_partner(const GaussianMap& map, Eigen::Index k, double radius, double gate,
-                           const MayBeOneLandmark& may_be_one);
+                           const MayBeOneLandmark& may_be_one, double feature_sigma = 0.0);
 
 // Merges every pair of features that are each other's merge_partner(), keeping the one with
 // the smaller id, in rounds until a round merges nothing (at most max_rounds). Returns
 // (merged id, kept id) for each merge. O(n^2) a round for the search, O(n^2) a merge.
 std::vector<std::pair<std::int64_t, std::int64_t>> merge_duplicate_features(
-    GaussianMap& map, double radius, double gate, const MayBeOneLandmark& may_be_one, int max_rounds = 10);
+    GaussianMap& map, double radius, double gate, const MayBeOneLandmark& may_be_one,
+    double feature_sigma = 0.0, int max_rounds = 10);
 
 }  // namespace dcslam

@@ -195,8 +195,9 @@ class DCSlam : public SlamFilter {
   NodeMap materialize(const FrozenNode& node, IdAliases& aliases, LeafSets& leaves) const;
   // Merges the duplicates the joins left in the estimate's `map` as the EKF merges its own
   // (each the other's only compatible feature within merge_radius), with "from disjoint local
-  // maps" standing in for "never seen in one scan"; records the merges in `aliases` and
-  // `leaves`. Off with merge_radius 0 or known association.
+  // maps" standing in for "never seen in one scan", the test with join_feature_sigma as at a
+  // join; records the merges in `aliases` and `leaves`. Off with merge_radius 0 or known
+  // association.
   void merge_duplicates(GaussianMap& map, IdAliases& aliases, LeafSets& leaves) const;
   // Follows merged_into_, then the last estimate()'s aliases while they are current.
   std::int64_t resolve_one(std::int64_t id) const;
