@@ -61,7 +61,7 @@ def victoria_park(seeds: List[int], passes: List[int]) -> List[dict]:
         for count in passes:
             mapped = landmarks_by_id(results[count].estimate)
             distance = np.array([np.linalg.norm(mapped[i] - batch.landmarks[i]) for i in mapped])
-            counters = results[count].slam.stats.counters
+            counters = results[count].stats.counters
             rows.append(dict(seed=seed, passes=count, landmarks=len(mapped),
                              rms_to_optimum=float(np.sqrt(np.mean(distance ** 2))),
                              max_to_optimum=float(distance.max()),

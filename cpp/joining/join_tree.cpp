@@ -274,12 +274,16 @@ class LeafRebuilder {
   LeafRebuilder(std::vector<const GaussianMap*> maps, std::vector<const LeafLog*> logs,
                 std::vector<std::int64_t> robot_ids, const LeafModel& model)
       : maps_(std::move(maps)), logs_(std::move(logs)), robot_ids_(std::move(robot_ids)), model_(model),
-        poses_(maps_.size()) {}
+        poses_(maps_.size()) {
+    for (const LeafLog* log : logs_) weights_.push_back(leaf_weights(*log));
+  }
 
   // Fits every leaf's intermediate poses at `point`; returns the batch objective there.
   double fit(const GlobalEstimate& point) {
     double total = 0.0;
-    for (std::size_t k = 0; k < maps_.size(); ++k) total += fit_leaf_poses(*logs_[k], leaf_point(k, point), model_, poses_[k]);
+    for (std::size_t k = 0; k < maps_.size(); ++k) {
+      total += fit_leaf_poses(*logs_[k], weights_[k], leaf_point(k, point), model_, poses_[k]);
+    }
     return total;
   }
 
@@ -311,6 +315,7 @@ class LeafRebuilder {
 
   std::vector<const GaussianMap*> maps_;
   std::vector<const LeafLog*> logs_;
+  std::vector<LeafWeights> weights_;
   std::vector<std::int64_t> robot_ids_;
   LeafModel model_;
   std::vector<std::vector<Vec3>> poses_;

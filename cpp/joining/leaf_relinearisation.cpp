@@ -18,7 +18,7 @@ using Index = Eigen::Index;
 // Gauss–Newton steps of fit_leaf_poses(); they usually stop earlier, when no pose moves by more
 // than kPoseTolerance.
 constexpr int kPoseSteps = 10;
-constexpr double kPoseTolerance = 1e-10;
+constexpr double kPoseTolerance = 1e-9;
 // Step halvings when a Gauss–Newton step of the poses raises the objective.
 constexpr int kPoseHalvings = 10;
 
@@ -70,24 +70,6 @@ bool fitted(const LeafMeasurement& m, const LeafPoint& point) {
   return slot < point.features.size() && point.features[slot].has_value();
 }
 
-double objective(const LeafLog& log, const LeafPoint& point, const LeafModel& model, const LeafPoses& pose,
-                 const std::vector<Mat3>& odometry_information, const std::vector<Mat2>& measurement_information) {
-  double total = 0.0;
-  for (std::size_t t = 1; t <= log.u.size(); ++t) {
-    const Vec3 e = odometry_error(pose(static_cast<std::int64_t>(t) - 1), pose(static_cast<std::int64_t>(t)), log.u[t - 1]);
-    total += e.dot(odometry_information[t - 1] * e);
-  }
-  for (std::size_t i = 0; i < log.measurements.size(); ++i) {
-    const LeafMeasurement& m = log.measurements[i];
-    if (!fitted(m, point)) continue;
-    const Vec2 z_hat = observe(model.observation, model.sensor_offset, pose(m.pose),
-                               *point.features[static_cast<std::size_t>(m.feature)]);
-    const Vec2 nu = innovation(model.observation, m.z, z_hat);
-    total += nu.dot(measurement_information[i] * nu);
-  }
-  return total;
-}
-
 }  // namespace
 
 LeafLog seal_leaf_log(const LeafLog& log, const GaussianMap& map, const IdAliases& merged) {
@@ -128,7 +110,69 @@ LeafLog seal_leaf_log(const LeafLog& log, const GaussianMap& map, const IdAliase
   return sealed;
 }
 
-double fit_leaf_poses(const LeafLog& log, const LeafPoint& point, const LeafModel& model, std::vector<Vec3>& poses) {
+LeafWeights leaf_weights(const LeafLog& log) {
+  LeafWeights weights;
+  weights.odometry.reserve(log.Q.size());
+  for (const Mat3& Q : log.Q) weights.odometry.push_back(information<3>(Q));
+  weights.measurements.reserve(log.measurements.size());
+  for (const LeafMeasurement& m : log.measurements) weights.measurements.push_back(information<2>(m.R));
+  return weights;
+}
+
+namespace {
+
+// The normal equations of the intermediate poses at `pose` (block-tridiagonal: `diagonal`,
+// `upper` between pose j and j+1, `gradient` = -J' W r), and the objective there.
+double pose_normal_equations(const LeafLog& log, const LeafWeights& weights, const LeafPoint& point,
+                             const LeafModel& model, const LeafPoses& pose, std::vector<Mat3>& diagonal,
+                             std::vector<Mat3>& upper, std::vector<Vec3>& gradient) {
+  const std::size_t s = log.u.size();
+  const std::size_t L = diagonal.size();
+  std::fill(diagonal.begin(), diagonal.end(), Mat3::Zero());
+  std::fill(upper.begin(), upper.end(), Mat3::Zero());
+  std::fill(gradient.begin(), gradient.end(), Vec3::Zero());
+  double total = 0.0;
+  // Odometry t joins poses t-1 and t; unknown pose t is slot t-1 (1 <= t <= s-1).
+  for (std::size_t t = 1; t <= s; ++t) {
+    Mat3 J_a, J_b;
+    const Vec3 e = odometry_error(pose(static_cast<std::int64_t>(t) - 1), pose(static_cast<std::int64_t>(t)),
+                                  log.u[t - 1], &J_a, &J_b);
+    const Mat3& W = weights.odometry[t - 1];
+    const Vec3 We = W * e;
+    total += e.dot(We);
+    const bool a_unknown = t >= 2, b_unknown = t <= L;
+    if (a_unknown) {
+      diagonal[t - 2] += J_a.transpose() * W * J_a;
+      gradient[t - 2] -= J_a.transpose() * We;
+    }
+    if (b_unknown) {
+      diagonal[t - 1] += J_b.transpose() * W * J_b;
+      gradient[t - 1] -= J_b.transpose() * We;
+    }
+    if (a_unknown && b_unknown) upper[t - 2] += J_a.transpose() * W * J_b;
+  }
+  for (std::size_t i = 0; i < log.measurements.size(); ++i) {
+    const LeafMeasurement& m = log.measurements[i];
+    if (!fitted(m, point)) continue;
+    const bool unknown = m.pose >= 1 && static_cast<std::size_t>(m.pose) <= L;
+    Mat23 H;
+    const Vec2 z_hat = observe(model.observation, model.sensor_offset, pose(m.pose),
+                               *point.features[static_cast<std::size_t>(m.feature)], unknown ? &H : nullptr);
+    const Vec2 nu = innovation(model.observation, m.z, z_hat);
+    const Vec2 W_nu = weights.measurements[i] * nu;
+    total += nu.dot(W_nu);
+    if (!unknown) continue;
+    const auto k = static_cast<std::size_t>(m.pose) - 1;
+    diagonal[k] += H.transpose() * weights.measurements[i] * H;
+    gradient[k] += H.transpose() * W_nu;
+  }
+  return total;
+}
+
+}  // namespace
+
+double fit_leaf_poses(const LeafLog& log, const LeafWeights& weights, const LeafPoint& point, const LeafModel& model,
+                      std::vector<Vec3>& poses) {
   const std::size_t s = log.u.size();
   const std::size_t L = s > 0 ? s - 1 : 0;  // unknown poses x_1..x_{s-1}
   if (poses.size() != L) {
@@ -141,50 +185,12 @@ double fit_leaf_poses(const LeafLog& log, const LeafPoint& point, const LeafMode
       poses[t - 1] = reckoned[t] + (static_cast<double>(t) / static_cast<double>(s)) * gap;
     }
   }
-  std::vector<Mat3> odometry_information;
-  odometry_information.reserve(s);
-  for (const Mat3& Q : log.Q) odometry_information.push_back(information<3>(Q));
-  std::vector<Mat2> measurement_information;
-  measurement_information.reserve(log.measurements.size());
-  for (const LeafMeasurement& m : log.measurements) measurement_information.push_back(information<2>(m.R));
   const LeafPoses pose(poses, point.end);
-  double current = objective(log, point, model, pose, odometry_information, measurement_information);
-  if (L == 0) return current;
-
   std::vector<Mat3> diagonal(L), upper(L);
   std::vector<Vec3> gradient(L), delta(L);
-  for (int step = 0; step < kPoseSteps; ++step) {
-    std::fill(diagonal.begin(), diagonal.end(), Mat3::Zero());
-    std::fill(upper.begin(), upper.end(), Mat3::Zero());
-    std::fill(gradient.begin(), gradient.end(), Vec3::Zero());
-    // Odometry t joins poses t-1 and t; unknown pose t is slot t-1 (1 <= t <= s-1).
-    for (std::size_t t = 1; t <= s; ++t) {
-      Mat3 J_a, J_b;
-      const Vec3 e = odometry_error(pose(static_cast<std::int64_t>(t) - 1), pose(static_cast<std::int64_t>(t)),
-                                    log.u[t - 1], &J_a, &J_b);
-      const Mat3& W = odometry_information[t - 1];
-      const bool a_unknown = t >= 2, b_unknown = t <= L;
-      if (a_unknown) {
-        diagonal[t - 2] += J_a.transpose() * W * J_a;
-        gradient[t - 2] -= J_a.transpose() * W * e;
-      }
-      if (b_unknown) {
-        diagonal[t - 1] += J_b.transpose() * W * J_b;
-        gradient[t - 1] -= J_b.transpose() * W * e;
-      }
-      if (a_unknown && b_unknown) upper[t - 2] += J_a.transpose() * W * J_b;
-    }
-    for (std::size_t i = 0; i < log.measurements.size(); ++i) {
-      const LeafMeasurement& m = log.measurements[i];
-      if (m.pose < 1 || static_cast<std::size_t>(m.pose) > L || !fitted(m, point)) continue;
-      Mat23 H;
-      const Vec2 z_hat = observe(model.observation, model.sensor_offset, pose(m.pose),
-                                 *point.features[static_cast<std::size_t>(m.feature)], &H);
-      const Vec2 nu = innovation(model.observation, m.z, z_hat);
-      const auto k = static_cast<std::size_t>(m.pose) - 1;
-      diagonal[k] += H.transpose() * measurement_information[i] * H;
-      gradient[k] += H.transpose() * measurement_information[i] * nu;
-    }
+  // Each evaluation builds the next step's equations with the objective: one sweep a step.
+  double current = pose_normal_equations(log, weights, point, model, pose, diagonal, upper, gradient);
+  for (int step = 0; step < kPoseSteps && L > 0; ++step) {
     // Block Thomas: eliminate forwards, substitute backwards.
     for (std::size_t j = 1; j < L; ++j) {
       const Mat3 factor = diagonal[j - 1].ldlt().solve(upper[j - 1]).transpose();
@@ -200,19 +206,36 @@ double fit_leaf_poses(const LeafLog& log, const LeafPoint& point, const LeafMode
     // Halved while it raises the objective (far from the fit only).
     const std::vector<Vec3> before = poses;
     double scale = 1.0;
-    double candidate = current;
-    for (int halving = 0; halving <= kPoseHalvings; ++halving, scale *= 0.5) {
+    bool lowered = false;
+    for (int halving = 0; halving <= kPoseHalvings && !lowered; ++halving) {
       for (std::size_t j = 0; j < L; ++j) poses[j] = before[j] + scale * delta[j];
-      candidate = objective(log, point, model, pose, odometry_information, measurement_information);
-      if (candidate <= current) break;
+      const double value = pose_normal_equations(log, weights, point, model, pose, diagonal, upper, gradient);
+      if (value <= current) {
+        current = value;
+        lowered = true;
+      } else {
+        scale *= 0.5;
+      }
     }
-    if (!(candidate <= current)) {
+    if (!lowered) {
       poses = before;
+      current = pose_normal_equations(log, weights, point, model, pose, diagonal, upper, gradient);
       break;
     }
-    current = candidate;
     if (!(scale * largest > kPoseTolerance)) break;
   }
+  // A motion whose heading is known exactly (zero variance, uncorrelated) fixes the heading:
+  // set from the pose before rather than fitted to the floor's precision (with a weight of
+  // 1e12 the block elimination leaves ~1e-9 rad, and the rebuilt map depends on the heading to
+  // first order).
+  bool snapped = false;
+  for (std::size_t t = 1; t <= L; ++t) {
+    const Mat3& Q = log.Q[t - 1];
+    if (Q(2, 2) != 0.0 || Q(0, 2) != 0.0 || Q(1, 2) != 0.0) continue;
+    poses[t - 1].z() = pose(static_cast<std::int64_t>(t) - 1).z() + log.u[t - 1].z();
+    snapped = true;
+  }
+  if (snapped) current = pose_normal_equations(log, weights, point, model, pose, diagonal, upper, gradient);
   return current;
 }
 

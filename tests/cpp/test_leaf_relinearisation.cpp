@@ -82,7 +82,7 @@ TEST(LeafRelinearisation, TheLinearCaseRebuildsTheEkfMapAtAnyPoint) {
     point.features.emplace_back(map.feature(j) + 0.3 * Vec2(normal(rng), normal(rng)));
   }
   std::vector<Vec3> poses;
-  fit_leaf_poses(sealed, point, LeafModel{config.observation, config.sensor_offset}, poses);
+  fit_leaf_poses(sealed, leaf_weights(sealed), point, LeafModel{config.observation, config.sensor_offset}, poses);
   const GaussianMap rebuilt = rebuild_leaf(map, sealed, point, poses, LeafModel{config.observation, config.sensor_offset});
   EXPECT_EQ(rebuilt.ids(), map.ids());
   const double scale_x = map.x().cwiseAbs().maxCoeff(), scale_P = map.P().cwiseAbs().maxCoeff();
@@ -102,10 +102,10 @@ TEST(LeafRelinearisation, ExactMeasurementsAtTheTruthGiveTheTruth) {
   }
   const LeafModel model{config.observation, config.sensor_offset};
   std::vector<Vec3> poses;  // from dead reckoning, which is exact here
-  EXPECT_LT(fit_leaf_poses(sealed, point, model, poses), 1e-20);
+  EXPECT_LT(fit_leaf_poses(sealed, leaf_weights(sealed), point, model, poses), 1e-20);
   // Started elsewhere, the fit finds the true poses.
   for (Vec3& pose : poses) pose += Vec3(0.2, -0.1, 0.05);
-  EXPECT_LT(fit_leaf_poses(sealed, point, model, poses), 1e-16);
+  EXPECT_LT(fit_leaf_poses(sealed, leaf_weights(sealed), point, model, poses), 1e-16);
   for (std::size_t t = 0; t < poses.size(); ++t) {
     EXPECT_LT((poses[t] - run.truth[t + 1]).cwiseAbs().maxCoeff(), 1e-9) << t;
   }

@@ -66,15 +66,24 @@ struct LeafPoint {
   std::vector<std::optional<Vec2>> features;
 };
 
+// The weights of a log's residuals: Q^-1 and R^-1, a zero variance (a known heading, an exactly
+// known motion) weighted as a constraint (a floor of 1e-12 of the largest variance).
+struct LeafWeights {
+  std::vector<Mat3> odometry;
+  std::vector<Mat2> measurements;
+};
+LeafWeights leaf_weights(const LeafLog& log);
+
 // The intermediate poses x_1..x_{s-1} (base frame; x_0 is the base, x_s the end) that minimise
 // the leaf's odometry and measurement residuals with the end pose and the features the global
 // map holds fixed at `point` (the other features' measurements are left out):
-// Gauss–Newton, block-tridiagonal in the poses, O(s + m) a step. `poses` is the start (empty:
-// dead reckoning with the gap to the end spread along the path) and receives the fit. Returns
-// the objective at the fit, Σ |⊖x_{t-1}⊕x_t - u_t|²_{Q^-1} + Σ |z - h(x_t, f)|²_{R^-1}. A
-// zero variance of Q (a known heading) is weighted as a constraint (a floor of 1e-12 of the
-// largest variance).
-double fit_leaf_poses(const LeafLog& log, const LeafPoint& point, const LeafModel& model, std::vector<Vec3>& poses);
+// Gauss–Newton, block-tridiagonal in the poses, O(s + m) a step, halved where a step would
+// raise the objective. `poses` is the start (empty: dead reckoning with the gap to the end
+// spread along the path) and receives the fit; a heading a motion knows exactly (zero
+// variance) is set from the pose before. Returns the objective at the fit,
+// Σ |⊖x_{t-1}⊕x_t - u_t|²_{Q^-1} + Σ |z - h(x_t, f)|²_{R^-1} (`weights`: leaf_weights(log)).
+double fit_leaf_poses(const LeafLog& log, const LeafWeights& weights, const LeafPoint& point, const LeafModel& model,
+                      std::vector<Vec3>& poses);
 
 // The local map `map` (its ids and feature order; its log `log`, sealed) rebuilt at `point`
 // with the intermediate poses `poses` (fit_leaf_poses()): a Kalman filter over [robot;
