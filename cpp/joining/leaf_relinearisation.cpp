@@ -203,14 +203,16 @@ double fit_leaf_poses(const LeafLog& log, const LeafWeights& weights, const Leaf
       delta[j] = diagonal[j].ldlt().solve(rhs);
       largest = std::max(largest, delta[j].cwiseAbs().maxCoeff());
     }
-    // Halved while it raises the objective (far from the fit only).
+    // Halved while it raises the objective (far from the fit only). A step below the
+    // tolerance is taken as it is: there the objective changes by less than its rounding.
     const std::vector<Vec3> before = poses;
+    const bool last = !(largest > kPoseTolerance);
     double scale = 1.0;
     bool lowered = false;
     for (int halving = 0; halving <= kPoseHalvings && !lowered; ++halving) {
       for (std::size_t j = 0; j < L; ++j) poses[j] = before[j] + scale * delta[j];
       const double value = pose_normal_equations(log, weights, point, model, pose, diagonal, upper, gradient);
-      if (value <= current) {
+      if (last || value <= current * (1.0 + 1e-12)) {
         current = value;
         lowered = true;
       } else {
@@ -222,7 +224,7 @@ double fit_leaf_poses(const LeafLog& log, const LeafWeights& weights, const Leaf
       current = pose_normal_equations(log, weights, point, model, pose, diagonal, upper, gradient);
       break;
     }
-    if (!(scale * largest > kPoseTolerance)) break;
+    if (last || !(scale * largest > kPoseTolerance)) break;
   }
   // A motion whose heading is known exactly (zero variance, uncorrelated) fixes the heading:
   // set from the pose before rather than fitted to the floor's precision (with a weight of
