@@ -238,7 +238,6 @@ void save_log(Writer& out, const LeafLog& log) {
     out.pod(m.feature);
     out.pod(m.pose);
   }
-  out.pod(log.removed_features);
 }
 
 LeafLog load_log(Reader& in) {
@@ -262,8 +261,6 @@ LeafLog load_log(Reader& in) {
                     "a logged measurement out of step order");
     previous_pose = m.pose;
   }
-  log.removed_features = in.pod<std::int64_t>();
-  Reader::require(log.removed_features >= 0, "a negative count of removed features");
   return log;
 }
 
@@ -597,7 +594,7 @@ struct CheckpointAccess {
       leaf.robot_id = in.pod<std::int64_t>();
       LeafLog log = load_log(in);
       for (const LeafMeasurement& m : log.measurements) {
-        Reader::require(m.feature >= 0 && m.feature < leaf.map->num_features() + log.removed_features,
+        Reader::require(m.feature >= 0 && m.feature < leaf.map->num_features(),
                         "a kept local map's measurement of no feature of it");
       }
       leaf.log = std::make_shared<const LeafLog>(std::move(log));

@@ -75,33 +75,18 @@ bool fitted(const LeafMeasurement& m, const LeafPoint& point) {
 LeafLog seal_leaf_log(const LeafLog& log, const GaussianMap& map, const IdAliases& merged) {
   std::unordered_map<std::int64_t, std::int64_t> slot_of;
   for (Index k = 0; k < map.num_features(); ++k) slot_of[map.ids()[static_cast<std::size_t>(k)]] = k;
-  std::vector<std::int64_t> ended(log.measurements.size());
-  std::unordered_map<std::int64_t, int> removed_sightings;
-  for (std::size_t i = 0; i < ended.size(); ++i) {
-    ended[i] = follow_aliases(merged, log.measurements[i].feature);
-    if (slot_of.count(ended[i]) == 0) ++removed_sightings[ended[i]];
-  }
   LeafLog sealed;
   sealed.u = log.u;
   sealed.Q = log.Q;
   sealed.measurements.reserve(log.measurements.size());
   std::vector<bool> measured(static_cast<std::size_t>(map.num_features()), false);
-  std::unordered_map<std::int64_t, std::int64_t> removed_slot;
-  for (std::size_t i = 0; i < ended.size(); ++i) {
-    LeafMeasurement m = log.measurements[i];
-    const auto found = slot_of.find(ended[i]);
-    if (found != slot_of.end()) {
-      m.feature = found->second;
-      measured[static_cast<std::size_t>(m.feature)] = true;
-    } else if (removed_sightings[ended[i]] > 1) {
-      const auto next = map.num_features() + static_cast<std::int64_t>(removed_slot.size());
-      m.feature = removed_slot.emplace(ended[i], next).first->second;
-    } else {
-      continue;
-    }
+  for (LeafMeasurement m : log.measurements) {
+    const auto found = slot_of.find(follow_aliases(merged, m.feature));
+    if (found == slot_of.end()) continue;  // a feature the local map removed
+    m.feature = found->second;
+    measured[static_cast<std::size_t>(m.feature)] = true;
     sealed.measurements.push_back(m);
   }
-  sealed.removed_features = static_cast<std::int64_t>(removed_slot.size());
   for (std::size_t k = 0; k < measured.size(); ++k) {
     if (!measured[k]) {
       throw std::logic_error("seal_leaf_log: feature " + std::to_string(map.ids()[k]) + " of the local map has no measurement");
@@ -244,7 +229,7 @@ double fit_leaf_poses(const LeafLog& log, const LeafWeights& weights, const Leaf
 GaussianMap rebuild_leaf(const GaussianMap& map, const LeafLog& log, const LeafPoint& point,
                          const std::vector<Vec3>& poses, const LeafModel& model) {
   const Index p = map.num_features();
-  const Index slots = p + log.removed_features;
+  const Index slots = p;
   if (static_cast<Index>(point.features.size()) != p || poses.size() + 1 != std::max<std::size_t>(log.u.size(), 1)) {
     throw std::logic_error("rebuild_leaf: the point does not fit the local map");
   }
@@ -291,9 +276,13 @@ GaussianMap rebuild_leaf(const GaussianMap& map, const LeafLog& log, const LeafP
     if (next < log.measurements.size() && log.measurements[next].pose < t) {
       throw std::logic_error("rebuild_leaf: the log's measurements are not in step order");
     }
+    // A feature the global map does not hold keeps its first sighting only: its later ones
+    // are left out, as the batch problem leaves them out (seen once, as every such feature is
+    // with min_sightings = 2, this is all the run had).
     paired.clear();
     for (std::size_t i = first; i < next; ++i) {
-      if (position[static_cast<std::size_t>(log.measurements[i].feature)] >= 0) paired.push_back(i);
+      const auto slot = static_cast<std::size_t>(log.measurements[i].feature);
+      if (position[slot] >= 0 && point.features[slot].has_value()) paired.push_back(i);
     }
     const Vec3 robot_offset = pose_difference(y.head<3>(), x0);
     if (!paired.empty()) {
@@ -341,7 +330,7 @@ GaussianMap rebuild_leaf(const GaussianMap& map, const LeafLog& log, const LeafP
       // First sighting: f = f0 + H_f^-1 (z - h(x0, f0) - H_R δx - v), exact for the model
       // linearised at (x0, f0). A feature the global map does not hold is linearised where
       // this measurement puts it.
-      linearised[slot] = slot < static_cast<std::size_t>(p) && point.features[slot].has_value()
+      linearised[slot] = point.features[slot].has_value()
                              ? *point.features[slot]
                              : inverse_observe(model.observation, model.sensor_offset, x0, m.z);
       Mat23 H_R;
@@ -360,7 +349,7 @@ GaussianMap rebuild_leaf(const GaussianMap& map, const LeafLog& log, const LeafP
       P.block<2, 2>(offset, offset) = 0.5 * (P_ff + P_ff.transpose());
     }
   }
-  // [end pose; the map's features in its order]: the removed features marginalised out.
+  // [end pose; the map's features in its order].
   GaussianMap rebuilt = GaussianMap::uninitialized(p);
   std::vector<Index> rows = {0, 1, 2};
   for (Index j = 0; j < p; ++j) {

@@ -25,8 +25,7 @@ namespace dcslam {
 
 // One measurement a local map's EKF used. `pose`: predicts of the local map before it (0: its
 // base). `feature`: while the local map is open, the id update() gave; once sealed
-// (seal_leaf_log()), the slot of the feature it ended in: 0..p-1 a feature of the closed map,
-// p.. a feature the local map removed (tentative, seen more than once).
+// (seal_leaf_log()), the slot of the feature it ended in (0..p-1, in the local map's order).
 struct LeafMeasurement {
   Vec2 z = Vec2::Zero();
   Mat2 R = Mat2::Identity();
@@ -39,7 +38,6 @@ struct LeafLog {
   std::vector<Vec3> u;
   std::vector<Mat3> Q;
   std::vector<LeafMeasurement> measurements;
-  std::int64_t removed_features = 0;  // sealed: slots p .. p + removed_features - 1
 };
 
 // The observation model the local maps were built with.
@@ -50,17 +48,17 @@ struct LeafModel {
 
 // `log` (ids as update() gave them) with each measurement's feature replaced by its slot in
 // `map`, the local map it built, after following the local map's merges (`merged`: dropped id
-// -> the id it was merged into). A measurement of a feature the local map removed (a tentative
-// one) gets a slot of its own past the map's features if that feature was seen more than once;
-// seen once, it is left out, which changes nothing (a feature with one measurement adds no
-// information, and marginalising it is exact). Throws std::logic_error if a feature of `map`
-// has no measurement.
+// -> the id it was merged into). The measurements of a feature the local map removed (a
+// tentative one) are left out, as the batch problem of the run's map leaves them out; with
+// min_sightings = 2 such a feature was seen once, and leaving it out changes nothing (one
+// measurement adds no information, and the EKF marginalised it). Throws std::logic_error if a
+// feature of `map` has no measurement.
 LeafLog seal_leaf_log(const LeafLog& log, const GaussianMap& map, const IdAliases& merged);
 
 // Where the whole problem puts a local map's elements, in its base frame: its end pose, and
 // each of its features (std::nullopt for a feature the global map does not hold: a tentative
-// one dropped by a later join; it is linearised at its first sighting, where its measurement
-// is met exactly).
+// one dropped by a later join; it keeps only its first sighting, linearised where that
+// measurement puts it, so it adds no information and the join drops it as in the run).
 struct LeafPoint {
   Vec3 end = Vec3::Zero();
   std::vector<std::optional<Vec2>> features;
