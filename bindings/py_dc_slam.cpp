@@ -127,6 +127,9 @@ void define_dc_slam(py::module_& m) {
                record["P"] = Eigen::MatrixXd(leaf.map->P());
                record["feature_ids"] = leaf.map->ids();
                record["robot_id"] = leaf.robot_id;
+               // The log's size: steps (predicts) and the measurements kept from them.
+               record["steps"] = leaf.log->u.size();
+               record["measurements"] = leaf.log->measurements.size();
                out.append(record);
              }
              return out;

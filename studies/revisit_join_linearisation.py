@@ -29,7 +29,7 @@ import numpy as np
 import dcslam
 from dcslam import evaluation
 
-# The oracle is kept beside the test that checks it (tests/python/test_tree_relinearisation.py).
+# The oracle is kept beside the test that checks it (tests/python/test_submap_joining.py).
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "python"))
 from oracles import submap_joining  # noqa: E402
 

@@ -224,6 +224,46 @@ void save_map(Writer& out, const GaussianMap& map) {
   out.doubles(P.data(), static_cast<std::size_t>(P.size()));
 }
 
+// A local map's log (leaf_relinearisation.hpp): steps, then measurements.
+void save_log(Writer& out, const LeafLog& log) {
+  out.count(log.u.size());
+  for (std::size_t t = 0; t < log.u.size(); ++t) {
+    out.doubles(log.u[t].data(), 3);
+    out.doubles(log.Q[t].data(), 9);
+  }
+  out.count(log.measurements.size());
+  for (const LeafMeasurement& m : log.measurements) {
+    out.doubles(m.z.data(), 2);
+    out.doubles(m.R.data(), 4);
+    out.pod(m.feature);
+    out.pod(m.pose);
+  }
+}
+
+LeafLog load_log(Reader& in) {
+  LeafLog log;
+  log.u.resize(in.count(12 * sizeof(double)));
+  log.Q.resize(log.u.size());
+  for (std::size_t t = 0; t < log.u.size(); ++t) {
+    in.doubles(log.u[t].data(), 3);
+    in.doubles(log.Q[t].data(), 9);
+    Reader::require(log.u[t].allFinite() && log.Q[t].allFinite(), "a logged motion that is not finite");
+  }
+  log.measurements.resize(in.count(6 * sizeof(double) + 16));
+  std::int64_t previous_pose = 0;
+  for (LeafMeasurement& m : log.measurements) {
+    in.doubles(m.z.data(), 2);
+    in.doubles(m.R.data(), 4);
+    m.feature = in.pod<std::int64_t>();
+    m.pose = in.pod<std::int64_t>();
+    Reader::require(m.z.allFinite() && m.R.allFinite(), "a logged measurement that is not finite");
+    Reader::require(m.pose >= previous_pose && m.pose <= static_cast<std::int64_t>(log.u.size()),
+                    "a logged measurement out of step order");
+    previous_pose = m.pose;
+  }
+  return log;
+}
+
 GaussianMap load_map(Reader& in) {
   const auto capacity = in.pod<std::int64_t>();
   const auto dim = in.pod<std::int64_t>();
@@ -529,6 +569,7 @@ struct CheckpointAccess {
       save_map(out, *leaf.map);
       save_tentative(out, leaf.tentative);
       out.pod(leaf.robot_id);
+      save_log(out, *leaf.log);
     }
     out.count(f.tree_.joins().size());
     for (const auto& [node, left_leaves] : f.tree_.joins()) {
@@ -536,8 +577,12 @@ struct CheckpointAccess {
       out.pod(node.second);
       out.pod(left_leaves);
     }
+    save_log(out, f.open_log_);
     out.pod(f.relinearisation_.passes);
     out.pod(f.relinearisation_.last_step);
+    out.pod(f.relinearisation_.first_objective);
+    out.pod(f.relinearisation_.objective);
+    out.pod(f.relinearisation_.halvings);
   }
 
   static void load_tree(Reader& in, DCSlam& f) {
@@ -547,6 +592,12 @@ struct CheckpointAccess {
       leaf.map = std::make_shared<const GaussianMap>(load_map(in));
       leaf.tentative = load_tentative(in);
       leaf.robot_id = in.pod<std::int64_t>();
+      LeafLog log = load_log(in);
+      for (const LeafMeasurement& m : log.measurements) {
+        Reader::require(m.feature >= 0 && m.feature < leaf.map->num_features(),
+                        "a kept local map's measurement of no feature of it");
+      }
+      leaf.log = std::make_shared<const LeafLog>(std::move(log));
       f.tree_.add_leaf(std::move(leaf));
     }
     const std::size_t joins = in.count(24);
@@ -559,8 +610,12 @@ struct CheckpointAccess {
                       "a join of the kept tree outside its local maps");
       f.tree_.add_join(TreeSpan{first_leaf, left_leaves}, TreeSpan{first_leaf + left_leaves, node_leaves - left_leaves});
     }
+    f.open_log_ = load_log(in);
     f.relinearisation_.passes = in.pod<int>();
     f.relinearisation_.last_step = in.pod<double>();
+    f.relinearisation_.first_objective = in.pod<double>();
+    f.relinearisation_.objective = in.pod<double>();
+    f.relinearisation_.halvings = in.pod<int>();
   }
 
   static void save_node(Writer& out, const DCSlam::Node& node, bool keep_budgets) {

@@ -129,6 +129,10 @@ void DCSlam::predict(const Vec3& u, const Mat3& Q) {
   raise_join_failure_if_any();
   const auto start = Clock::now();
   local_->predict(u, Q);  // validates first: a bad call changes nothing
+  if (config_.tree_relinearisation > 0) {
+    open_log_.u.push_back(u);
+    open_log_.Q.push_back(0.5 * (Q + Q.transpose()));  // what the EKF uses
+  }
   forget_estimate_aliases();
   ++predictions_;
   begin_step();
@@ -151,8 +155,19 @@ std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::ve
     before_update_.steps = steps_;
     before_update_.stats_steps = stats_.steps.size();
     before_update_.last_step = stats_.steps.empty() ? StepStats() : stats_.steps.back();
+    before_update_.open_log_measurements = open_log_.measurements.size();
   }
   std::vector<std::int64_t> ids = local_->update(z, R, landmark_ids);
+  if (config_.tree_relinearisation > 0) {
+    // The measurements the EKF used (a rejected one gets -1), at the local map's current pose.
+    const auto pose = static_cast<std::int64_t>(open_log_.u.size());
+    for (std::size_t i = 0; i < ids.size(); ++i) {
+      if (ids[i] == -1) continue;
+      const Mat2& covariance = R.size() == 1 ? R[0] : R[i];
+      open_log_.measurements.push_back(LeafMeasurement{z.row(static_cast<Eigen::Index>(i)).transpose(),
+                                                       0.5 * (covariance + covariance.transpose()), ids[i], pose});
+    }
+  }
   forget_estimate_aliases();
   if (stats_.steps.empty()) begin_step();  // measurements at the first pose, before any motion
   const StepStats& local_step = local_->stats().steps.back();
@@ -208,13 +223,18 @@ void DCSlam::close_local_map() {
   node->robot_id = predictions_;
   node->expected_features = node->map->num_features();
   const std::int64_t next_id = local_->next_fresh_id();
+  const IdAliases local_merges = local_->merged_ids();
   local_ = std::make_unique<EkfSlam>(config_);
   local_->set_next_fresh_id(next_id);
   local_->keep_tentative_first_seen_until(window);
   steps_in_closed_maps_ += local_map_steps_;
   local_map_steps_ = 0;
   ++closed_local_maps_;
-  if (config_.tree_relinearisation > 0) tree_.add_leaf(TreeLeaf{node->map, node->tentative, node->robot_id});
+  if (config_.tree_relinearisation > 0) {
+    tree_.add_leaf(TreeLeaf{node->map, node->tentative, node->robot_id,
+                            std::make_shared<const LeafLog>(seal_leaf_log(open_log_, *node->map, local_merges))});
+    open_log_ = LeafLog();
+  }
   push_and_merge(std::move(node));
   if (!config_.amortize && !config_.threaded_joins) {
     const auto tasks = queue_;  // a failing join empties queue_ (record_join_failure())
@@ -264,7 +284,11 @@ void DCSlam::take_restore_point() {
   point.merged_into = merged_into_;
   point.leaves_of = leaves_of_;
   point.closed_maps_counters = closed_maps_counters_;
-  if (config_.tree_relinearisation > 0) point.tree = tree_;
+  if (config_.tree_relinearisation > 0) {
+    point.tree = tree_;
+    point.open_log = open_log_;
+    point.open_log.measurements.resize(before_update_.open_log_measurements);
+  }
   restore_points_.push_back(std::move(point));
 }
 
@@ -284,7 +308,10 @@ void DCSlam::roll_back(RestorePoint point) {
   merged_into_ = std::move(point.merged_into);
   leaves_of_ = std::move(point.leaves_of);
   closed_maps_counters_ = std::move(point.closed_maps_counters);
-  if (config_.tree_relinearisation > 0) tree_ = std::move(point.tree);
+  if (config_.tree_relinearisation > 0) {
+    tree_ = std::move(point.tree);
+    open_log_ = std::move(point.open_log);
+  }
   estimate_aliases_.clear();  // as after any update: resolve() follows the joins done
   std::map<int, std::shared_ptr<JoinTask>> tasks;
   const std::function<void(const std::shared_ptr<Node>&)> collect = [&](const std::shared_ptr<Node>& node) {
@@ -693,7 +720,9 @@ Estimate DCSlam::estimate() const {
     }
     const auto final_id = [&](std::int64_t id) { return follow_aliases(aliases, follow_aliases(merged, id)); };
     RelinearisationReport report;
-    GaussianMap root = tree_.relinearise(spans, *compact_copy(local_->map()), final_id, *joined, join_options(0, 0),
+    const LeafLog open_log = seal_leaf_log(open_log_, local_->map(), local_->merged_ids());
+    GaussianMap root = tree_.relinearise(spans, *compact_copy(local_->map()), open_log, final_id, *joined,
+                                         join_options(0, 0), LeafModel{config_.observation, config_.sensor_offset},
                                          config_.tree_relinearisation, kRelinearisationTolerance, &report);
     {
       std::lock_guard<std::mutex> lock(mutex_);
@@ -755,6 +784,9 @@ const RunStats& DCSlam::stats() const {
   if (config_.tree_relinearisation > 0) {
     stats_.counters["relinearisation_passes"] = relinearisation_.passes;
     stats_.counters["relinearisation_last_step"] = relinearisation_.last_step;
+    stats_.counters["relinearisation_first_objective"] = relinearisation_.first_objective;
+    stats_.counters["relinearisation_objective"] = relinearisation_.objective;
+    stats_.counters["relinearisation_halvings"] = relinearisation_.halvings;
   }
   for (const char* name : kLocalCounters) {
     stats_.counters[name] = counter(local_->stats().counters, name) + counter(closed_maps_counters_, name);
@@ -766,7 +798,8 @@ std::vector<TreeLeaf> DCSlam::tree_leaves() const {
   if (config_.tree_relinearisation == 0) return {};
   std::vector<TreeLeaf> leaves;
   for (std::int64_t k = 0; k < tree_.num_leaves(); ++k) leaves.push_back(tree_.leaf(k));
-  leaves.push_back(TreeLeaf{compact_copy(local_->map()), {}, -1});
+  leaves.push_back(TreeLeaf{compact_copy(local_->map()), {}, -1,
+                            std::make_shared<const LeafLog>(seal_leaf_log(open_log_, local_->map(), local_->merged_ids()))});
   return leaves;
 }
 

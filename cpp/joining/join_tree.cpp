@@ -35,6 +35,8 @@ namespace {
 // Gauss–Newton steps of the first point's boundaries (BoundaryFit); they usually stop earlier,
 // when no boundary moves by more than 1e-12.
 constexpr int kBoundarySteps = 10;
+// Halvings of a pass's step before the line search gives up (2^-20 of the step).
+constexpr int kLineSearchHalvings = 20;
 
 // The angle equal to `angle` modulo 2π that is nearest to `reference`: JoinFrame takes the
 // difference between a prior heading and the heading it is linearised at.
@@ -55,6 +57,30 @@ class GlobalEstimate {
   void set_pose(std::int64_t id, const Vec3& pose) { poses_[id] = pose; }
   bool has_pose(std::int64_t id) const { return poses_.count(id) != 0; }
   const Vec3& robot() const { return robot_; }
+  // This estimate moved a fraction `alpha` of the way to `to`, element by element (headings
+  // along the shorter turn); elements only `to` holds are taken from it.
+  GlobalEstimate toward(const GlobalEstimate& to, double alpha) const {
+    if (alpha == 1.0) return to;  // the full step: the pass's own means, bit for bit
+    GlobalEstimate moved = to;
+    moved.robot_ = blend(robot_, to.robot_, alpha);
+    for (auto& [id, position] : moved.features_) {
+      const auto found = features_.find(id);
+      if (found != features_.end()) position = found->second + alpha * (position - found->second);
+    }
+    for (auto& [id, pose] : moved.poses_) {
+      const auto found = poses_.find(id);
+      if (found != poses_.end()) pose = blend(found->second, pose, alpha);
+    }
+    return moved;
+  }
+  // Writes these means into `map`'s robot, features and past poses (by id; all must be here).
+  void set_means(GaussianMap& map) const {
+    map.x().head<3>() = robot_;
+    for (Index k = 0; k < map.num_features(); ++k) {
+      map.x().segment<2>(GaussianMap::feature_offset(k)) = *feature(map.ids()[static_cast<std::size_t>(k)]);
+    }
+    for (Index q = 0; q < map.num_poses(); ++q) map.x().segment<3>(map.pose_offset(q)) = pose(map.pose_ids()[static_cast<std::size_t>(q)]);
+  }
   const Vec2* feature(std::int64_t id) const {
     const auto found = features_.find(id);
     return found == features_.end() ? nullptr : &found->second;
@@ -66,6 +92,14 @@ class GlobalEstimate {
   }
 
  private:
+  static Vec3 blend(const Vec3& from, const Vec3& to, double alpha) {
+    Vec3 step = to - from;
+    step.z() = wrap_angle(step.z());
+    Vec3 moved = from + alpha * step;
+    moved.z() = wrap_angle(moved.z());
+    return moved;
+  }
+
   Vec3 robot_;
   std::unordered_map<std::int64_t, Vec2> features_;
   std::unordered_map<std::int64_t, Vec3> poses_;
@@ -230,6 +264,64 @@ struct BuiltNode {
   std::vector<TentativeFeature> tentative;
 };
 
+// The leaves (the open local map last) at a global estimate: their intermediate poses fitted
+// (kept from one fit to the next as its start) and the batch objective, and the leaves rebuilt
+// from their logs (leaf_relinearisation.hpp).
+class LeafRebuilder {
+ public:
+  // `maps`: the leaves' maps, ids relabelled to the final ids; `logs`: theirs, sealed;
+  // `robot_ids`: the pose id of each closed leaf's robot.
+  LeafRebuilder(std::vector<const GaussianMap*> maps, std::vector<const LeafLog*> logs,
+                std::vector<std::int64_t> robot_ids, const LeafModel& model)
+      : maps_(std::move(maps)), logs_(std::move(logs)), robot_ids_(std::move(robot_ids)), model_(model),
+        poses_(maps_.size()) {
+    for (const LeafLog* log : logs_) weights_.push_back(leaf_weights(*log));
+  }
+
+  // Fits every leaf's intermediate poses at `point`; returns the batch objective there.
+  double fit(const GlobalEstimate& point) {
+    double total = 0.0;
+    for (std::size_t k = 0; k < maps_.size(); ++k) {
+      total += fit_leaf_poses(*logs_[k], weights_[k], leaf_point(k, point), model_, poses_[k]);
+    }
+    return total;
+  }
+
+  // Every leaf rebuilt at `point`, with the poses of the last fit() (at `point`).
+  std::vector<std::shared_ptr<const GaussianMap>> rebuild(const GlobalEstimate& point) const {
+    std::vector<std::shared_ptr<const GaussianMap>> rebuilt;
+    rebuilt.reserve(maps_.size());
+    for (std::size_t k = 0; k < maps_.size(); ++k) {
+      rebuilt.push_back(std::make_shared<const GaussianMap>(
+          rebuild_leaf(*maps_[k], *logs_[k], leaf_point(k, point), poses_[k], model_)));
+    }
+    return rebuilt;
+  }
+
+ private:
+  // Leaf k's end pose and features where `point` puts them, in its base frame.
+  LeafPoint leaf_point(std::size_t k, const GlobalEstimate& point) const {
+    const Vec3 base = k == 0 ? Vec3::Zero() : point.pose(robot_ids_[k - 1]);
+    LeafPoint leaf;
+    leaf.end = between(base, k == robot_ids_.size() ? point.robot() : point.pose(robot_ids_[k]));
+    const GaussianMap& map = *maps_[k];
+    leaf.features.resize(static_cast<std::size_t>(map.num_features()));
+    for (Index j = 0; j < map.num_features(); ++j) {
+      const Vec2* global = point.feature(map.ids()[static_cast<std::size_t>(j)]);
+      if (global != nullptr) leaf.features[static_cast<std::size_t>(j)] = inverse_transform_point(base, *global);
+    }
+    return leaf;
+  }
+
+  std::vector<const GaussianMap*> maps_;
+  std::vector<const LeafLog*> logs_;
+  std::vector<LeafWeights> weights_;
+  std::vector<std::int64_t> robot_ids_;
+  LeafModel model_;
+  std::vector<std::vector<Vec3>> poses_;
+};
+
+
 // One pass over the tree: every join redone from the leaves, ⊕ linearised at `point`.
 class TreePass {
  public:
@@ -325,9 +417,9 @@ class TreePass {
 }  // namespace
 
 GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const GaussianMap& current,
-                                  const std::function<std::int64_t(std::int64_t)>& final_id,
-                                  const GaussianMap& start, const JoinOptions& options, int max_passes,
-                                  double tolerance, RelinearisationReport* report) const {
+                                  const LeafLog& open_log, const std::function<std::int64_t(std::int64_t)>& final_id,
+                                  const GaussianMap& start, const JoinOptions& options, const LeafModel& model,
+                                  int max_passes, double tolerance, RelinearisationReport* report) const {
   if (max_passes < 1) throw std::logic_error("JoinTree::relinearise: max_passes must be >= 1");
   const auto relabel = [&](std::int64_t id) {
     const std::int64_t resolved = final_id(id);
@@ -377,16 +469,54 @@ GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const Gaus
   }
   for (std::size_t j = 0; j < boundaries.size(); ++j) point.set_pose(boundary_ids[j], boundaries[j]);
 
+  std::vector<const LeafLog*> logs;
+  std::vector<std::int64_t> robot_ids;
+  for (const TreeLeaf& kept : leaves_) {
+    if (!kept.log) throw std::logic_error("JoinTree::relinearise: a local map kept without its log");
+    logs.push_back(kept.log.get());
+    robot_ids.push_back(kept.robot_id);
+  }
+  logs.push_back(&open_log);
+  LeafRebuilder rebuilder(maps, std::move(logs), std::move(robot_ids), model);
+
   RelinearisationReport done;
+  double objective = rebuilder.fit(point);
+  done.first_objective = objective;
   GaussianMap result;
   for (int pass = 0; pass < max_passes; ++pass) {
-    GaussianMap next = TreePass(*this, leaves, open_map, options, point).fold(stack);
+    const std::vector<std::shared_ptr<const GaussianMap>> rebuilt = rebuilder.rebuild(point);
+    std::vector<BuiltNode> pass_leaves;
+    pass_leaves.reserve(leaves.size());
+    for (std::size_t k = 0; k < leaves.size(); ++k) pass_leaves.push_back(BuiltNode{rebuilt[k], leaves[k].tentative});
+    GaussianMap next = TreePass(*this, pass_leaves, rebuilt.back(), options, point).fold(stack);
+    // The line search: the Gauss–Newton step is taken whole where it lowers the batch
+    // objective (always, near the optimum), else halved until it does. Each try refits the
+    // intermediate poses, O(steps + measurements), next to the pass's O(n^2) joins.
+    const GlobalEstimate proposed(next);
+    bool lowered = false;
+    double alpha = 1.0;
+    for (int halving = 0; halving <= kLineSearchHalvings && !lowered; ++halving) {
+      GlobalEstimate candidate = point.toward(proposed, alpha);
+      const double value = rebuilder.fit(candidate);
+      if (value <= objective * (1.0 + 1e-12)) {
+        lowered = true;
+        objective = value;
+        point = std::move(candidate);
+      } else {
+        ++done.halvings;
+        alpha *= 0.5;
+      }
+    }
+    // No fraction of the step lowers the objective: the point is its minimum to rounding,
+    // and the result keeps its means.
+    if (!lowered) point = point.toward(proposed, 0.0);
+    point.set_means(next);
     done.last_step = largest_change(pass == 0 ? start : result, next);
     ++done.passes;
     result = std::move(next);
-    if (done.last_step <= tolerance || pass + 1 == max_passes) break;
-    point = GlobalEstimate(result);
+    if (!lowered || done.last_step <= tolerance) break;
   }
+  done.objective = objective;
   if (report != nullptr) *report = done;
   return result;
 }

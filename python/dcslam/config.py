@@ -92,19 +92,17 @@ class SlamConfig:
             ``join_feature_sigma**2 * I`` to each feature of a tested pair; the update still
             imposes the pairs exactly. 0 (default): the maps' covariances alone. Victoria
             Park's config sets it from the data (docs/victoria_park.md).
-        tree_relinearisation: D&C: Gauss-Newton passes (>= 0) that :meth:`~dcslam.DCSlam.estimate`
-            makes through the whole tree of joins, redoing every join from the kept local
-            maps with the move into the first map's frame linearised at the previous pass's
-            map, until no mean moves by more than 1e-9 (m or rad). The estimate then is the
-            least-squares optimum of "each local map measures the global map" with its full
-            covariance, instead of each join's linearisation where its own inputs were
-            (docs/divide_and_conquer.md, "Re-linearised joins"). 0 (default): the paper's D&C,
-            and the local maps are not kept; chosen by measurement, since the optimum the
-            passes reach is not always nearer the truth: on Victoria Park one pass brings the
-            map from 1.28 m to 0.25 m RMS of the batch optimum of the run's own associations
-            (1.4x plain D&C's total time), but on MR.CLAM robot 1 (known ids, Vicon truth) it
-            takes the landmarks from 0.19 m to 0.49 m of the truth (0.37 m converged).
-            Costs about the run's join work per pass, in ``estimate()`` only.
+        tree_relinearisation: D&C: damped Gauss-Newton passes (>= 0) that
+            :meth:`~dcslam.DCSlam.estimate` makes through the whole tree of joins: every kept
+            local map is rebuilt from its own odometry and measurements, and every join
+            redone, all linearised at the previous pass's map, each pass's step shortened
+            until it does not raise the batch objective; until no mean moves by more than
+            1e-9 (m or rad). Converged, the estimate is the batch least-squares optimum of
+            the run's own associations (every pose and landmark) with its full covariance
+            (docs/divide_and_conquer.md, "Re-linearised joins through the tree"). 0
+            (default): the paper's D&C, nothing kept; chosen by measurement: on Victoria Park
+            one pass brings the map from 1.28 m to 0.012 m RMS of that optimum, but costs
+            about as much CPU again as the whole plain run (1.9x its total).
         seed: every random choice is reproducible from it.
         amortize: D&C spreads each join over the following steps (docs/design.md §5.3).
         threaded_joins: D&C runs joins on a background thread while mapping goes on

@@ -54,10 +54,11 @@ struct SlamConfig {
   // sides), added as join_feature_sigma^2 I to each feature of a tested pair. The update still
   // imposes the pairs exactly. 0: the maps' covariances alone (exact in simulation).
   double join_feature_sigma = 0.0;
-  // D&C: Gauss–Newton passes that estimate() makes through the whole tree of joins, redoing
-  // every join from the kept local maps linearised at the previous pass's map (join_tree.hpp).
-  // 0 (the paper's D&C; the local maps are not kept) by measurement: the optimum the passes
-  // reach is nearer the batch optimum but not always nearer the truth
+  // D&C: damped Gauss–Newton passes that estimate() makes through the whole tree of joins,
+  // rebuilding every kept local map from its own odometry and measurements and redoing every
+  // join, all linearised at the previous pass's map (join_tree.hpp, leaf_relinearisation.hpp);
+  // converged, the batch optimum of the run's associations. 0 (the paper's D&C; nothing is
+  // kept) by measurement: one pass costs about as much again as the whole plain run
   // (docs/divide_and_conquer.md).
   int tree_relinearisation = 0;
   std::uint64_t seed = 0;

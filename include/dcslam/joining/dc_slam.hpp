@@ -69,8 +69,9 @@ class DCSlam : public SlamFilter {
   const RunStats& stats() const override;
 
   // The local maps as they closed, then the open one (its robot_id -1), each in its own base
-  // frame with the ids it gave its features: what the re-linearised tree starts from. Kept
-  // only with tree_relinearisation > 0 (else empty).
+  // frame with the ids it gave its features, and the sealed log of what each was built from:
+  // what the re-linearised tree starts from. Kept only with tree_relinearisation > 0 (else
+  // empty).
   std::vector<TreeLeaf> tree_leaves() const;
   // Join events so far (pending ones have step_finished == -1).
   std::vector<JoinEvent> joins() const;
@@ -153,6 +154,7 @@ class DCSlam : public SlamFilter {
     LeafSets leaves_of;
     std::map<std::string, double> closed_maps_counters;
     JoinTree tree;
+    LeafLog open_log;  // of the local map before the update
   };
   // The local map before an update that may close it (update()); moved into the restore point
   // if it does, else dropped by the next update.
@@ -161,6 +163,7 @@ class DCSlam : public SlamFilter {
     std::int64_t local_map_steps = 0, steps = 0;
     std::size_t stats_steps = 0;
     StepStats last_step;
+    std::size_t open_log_measurements = 0;  // open_log_'s measurements before the update
   };
   // A pending node and its join, copied down to its complete inputs (which never change
   // again, so they are shared); the copy's join has not started (its budgets are kept outside
@@ -225,6 +228,9 @@ class DCSlam : public SlamFilter {
   LeafSets leaves_of_;  // of the features of the closed local maps and of the joins done
   std::shared_ptr<const JoinOracle> join_oracle_;
   JoinTree tree_;  // with tree_relinearisation > 0; front end only
+  // What the open local map was built from (tree_relinearisation > 0; front end only): each
+  // predict()'s u, Q and each measurement update() used, with the id it gave.
+  LeafLog open_log_;
   // Counters of the closed local maps' filters (see kLocalCounters in dc_slam.cpp).
   std::map<std::string, double> closed_maps_counters_;
   // The merges of the joins the last estimate() made on copies: resolve() follows them until

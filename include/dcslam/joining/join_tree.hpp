@@ -2,17 +2,18 @@
 // D&C's tree of joins, kept so that every join can be redone from the local maps
 // (docs/divide_and_conquer.md, "Re-linearised joins").
 //
-// A join linearises ⊕ where its two inputs put the robot and the second map's elements. A
-// subtree mapped without the rest drifts, so its Gaussian is linearised at the drifted
-// estimate, and a later join can only correct it linearly. Here the leaves (each local map as
-// it closed: mean and covariance in its own base frame, O(p^2) each, O(n) leaves) and the
-// tree's shape are kept, and relinearise() redoes every join from the leaves with ⊕
-// linearised at one global estimate. Every join is exact in the linear-Gaussian case, so
-// such a pass solves the least-squares problem "each local map is a measurement of the
-// global map" linearised at that estimate: it is one Gauss–Newton step of the
-// submap-joining problem (Huang, Wang and Dissanayake's I-SLSJF; Zhao et al.'s Linear SLAM),
-// taken through D&C's own tree so that the result keeps the full covariance. Repeated passes
-// converge to that problem's optimum.
+// A join linearises ⊕ where its two inputs put the robot and the second map's elements, and
+// each local map's EKF linearised its own odometry and measurements where it stood. A subtree
+// mapped without the rest drifts, and a later join can only correct it linearly. Here the
+// leaves (each local map as it closed, with the log of what its EKF was built from:
+// leaf_relinearisation.hpp) and the tree's shape are kept, and relinearise() redoes every
+// join from the leaves at one global estimate: each leaf rebuilt from its own measurements
+// linearised there (rebuild_leaf()), each join's ⊕ linearised there. Every join is exact in
+// the linear-Gaussian case, so such a pass solves the full SLAM least-squares problem (every
+// pose and landmark; the intermediate poses marginalised leaf by leaf) linearised at that
+// estimate: one Gauss–Newton step, taken through D&C's own tree so that the result keeps the
+// full covariance. A line search on the batch objective damps the step, so no pass raises it;
+// repeated passes converge to the batch optimum of the run's own associations.
 #include <cstdint>
 #include <functional>
 #include <map>
@@ -21,6 +22,7 @@
 #include <vector>
 
 #include "dcslam/core/gaussian_map.hpp"
+#include "dcslam/joining/leaf_relinearisation.hpp"
 #include "dcslam/joining/map_joining.hpp"
 #include "dcslam/joining/tentative_features.hpp"
 
@@ -30,6 +32,8 @@ struct TreeLeaf {
   std::shared_ptr<const GaussianMap> map;  // as it closed: base frame, feature ids
   std::vector<TentativeFeature> tentative;
   std::int64_t robot_id = 0;  // pose id of its robot, the next leaf's base
+  // What its EKF was built from, sealed against `map` (seal_leaf_log()).
+  std::shared_ptr<const LeafLog> log;
 };
 
 // A node of the tree: the leaves first_leaf .. first_leaf + leaves - 1.
@@ -42,6 +46,10 @@ struct TreeSpan {
 struct RelinearisationReport {
   int passes = 0;          // Gauss–Newton passes through the tree
   double last_step = 0.0;  // largest change of a mean in the last pass (m or rad)
+  // The batch objective (sum of squared whitened residuals) at the first point and at the end.
+  double first_objective = 0.0;
+  double objective = 0.0;
+  int halvings = 0;  // step halvings of the line search, over all passes
 };
 
 class JoinTree {
@@ -57,23 +65,26 @@ class JoinTree {
   const std::map<std::pair<std::int64_t, std::int64_t>, std::int64_t>& joins() const { return left_leaves_; }
 
   // The map that DCSlam::estimate() folds from the nodes `stack` (bottom first, covering the
-  // leaves in order) and `current` (the open local map, based at the last leaf's robot), with
-  // every join redone, re-linearised at the previous pass's result, until no mean moves by
-  // more than `tolerance` (m or rad) or `max_passes` (>= 1) passes are done. The first pass
-  // linearises at `start`, the map as the tree made it (ids as `final_id` gives them), with
-  // each local-map boundary placed where its local map's features fit `start` best (whether
-  // `start` holds the boundaries or not).
+  // leaves in order) and `current` (the open local map, based at the last leaf's robot, built
+  // from `open_log`, sealed), with every leaf rebuilt and every join redone at the previous
+  // pass's result, until no mean moves by more than `tolerance` (m or rad) or `max_passes`
+  // (>= 1) passes are done. The first pass linearises at `start`, the map as the tree made it
+  // (ids as `final_id` gives them), with each local-map boundary placed where its local map's
+  // features fit `start` best (whether `start` holds the boundaries or not).
   //
-  // The joins pair features by `final_id` (each leaf feature's id once every merge of the run
-  // is followed: the joins', the fold's and the duplicate merge's; ids it maps to -1, dropped
-  // tentative features, keep their own), so the pairs are those the run decided, each made at
-  // the lowest join where its two features meet. `options` gives the constraint update's
-  // settings; association, linearisation and the past poses are set here. The result keeps
-  // every local-map boundary as a past pose (the linearisation points need them).
-  GaussianMap relinearise(const std::vector<TreeSpan>& stack, const GaussianMap& current,
+  // Each pass is a Gauss–Newton step of the batch problem; its means are then taken a
+  // fraction 1, 1/2, 1/4, ... of the way from the point it linearised at, the first that does
+  // not raise the batch objective (the covariance is the pass's). The joins pair features by
+  // `final_id` (each leaf feature's id once every merge of the run is followed: the joins',
+  // the fold's and the duplicate merge's; ids it maps to -1, dropped tentative features, keep
+  // their own), so the pairs are those the run decided, each made at the lowest join where
+  // its two features meet. `options` gives the constraint update's settings; association,
+  // linearisation and the past poses are set here. The result keeps every local-map boundary
+  // as a past pose (the linearisation points need them).
+  GaussianMap relinearise(const std::vector<TreeSpan>& stack, const GaussianMap& current, const LeafLog& open_log,
                           const std::function<std::int64_t(std::int64_t)>& final_id,
-                          const GaussianMap& start, const JoinOptions& options, int max_passes,
-                          double tolerance, RelinearisationReport* report = nullptr) const;
+                          const GaussianMap& start, const JoinOptions& options, const LeafModel& model,
+                          int max_passes, double tolerance, RelinearisationReport* report = nullptr) const;
 
  private:
   std::vector<TreeLeaf> leaves_;
