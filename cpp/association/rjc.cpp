@@ -63,6 +63,7 @@ void check_options(const RjcOptions& options) {
   }
   if (options.max_tries < 1) throw InvalidArgument("RjcOptions.max_tries must be >= 1");
   if (options.work_unit < 1) throw InvalidArgument("RjcOptions.work_unit must be >= 1");
+  if (options.panel_width < 1) throw InvalidArgument("RjcOptions.panel_width must be >= 1");
 }
 
 }  // namespace
@@ -70,7 +71,7 @@ void check_options(const RjcOptions& options) {
 int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel& model,
                                 double confidence, double* joint_distance_sq) {
   JointCompatibilityEnforcement enforcement(feature_of, model, confidence,
-                                            RjcOptions().work_unit);
+                                            RjcOptions().panel_width, RjcOptions().work_unit);
   while (!enforcement.done()) enforcement.step();
   if (joint_distance_sq != nullptr) *joint_distance_sq = enforcement.joint_distance_sq();
   return enforcement.removed();
@@ -179,8 +180,10 @@ std::int64_t SequentialAcceptance::remaining_work() const {
 JointCompatibilityEnforcement::JointCompatibilityEnforcement(std::vector<int>& feature_of,
                                                              const PairingModel& model,
                                                              double confidence,
+                                                             Eigen::Index panel_width,
                                                              std::int64_t work_unit)
-    : feature_of_(feature_of), model_(model), confidence_(confidence), work_unit_(work_unit) {
+    : feature_of_(feature_of), model_(model), confidence_(confidence), panel_width_(panel_width),
+      work_unit_(work_unit) {
   for (std::size_t i = 0; i < feature_of.size(); ++i) {
     if (feature_of[i] != kStar) stacked_.pairings.push_back(Pairing{static_cast<int>(i), feature_of[i]});
   }
@@ -212,7 +215,7 @@ std::int64_t JointCompatibilityEnforcement::step() {
         covariance.block<2, 2>(2 * b, 2 * a) = block.transpose();
       }
       if (++next_ == k) {
-        cholesky_ = ResumableCholesky(2 * k, 64, work_unit_);
+        cholesky_ = ResumableCholesky(2 * k, panel_width_, work_unit_);
         stage_ = Stage::Factor;
       }
       return kPairingCovarianceUnits * (a + 1);
@@ -694,7 +697,8 @@ void RjcSearch::end_of_verification() {
     result_.pairings = kept;
     stage_ = Stage::Done;
   } else {
-    joint_.emplace(result_.feature_of, model_, options_.confidence, options_.work_unit);
+    joint_.emplace(result_.feature_of, model_, options_.confidence, options_.panel_width,
+                   options_.work_unit);
     stage_ = Stage::Joint;
   }
 }

@@ -250,7 +250,7 @@ TEST(Rjc, VerificationDropsTheInconsistentPairing) {
   // same decision.
   std::vector<int> sliced = problem.truth;
   sliced[spurious] = 5 * 6 + 0;
-  JointCompatibilityEnforcement enforcement(sliced, problem.model, 0.99, 1);
+  JointCompatibilityEnforcement enforcement(sliced, problem.model, 0.99, kDefaultPanelWidth, 1);
   int steps = 0;
   while (!enforcement.done()) {
     enforcement.step();
