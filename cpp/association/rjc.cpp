@@ -215,7 +215,7 @@ std::int64_t JointCompatibilityEnforcement::step() {
         covariance.block<2, 2>(2 * b, 2 * a) = block.transpose();
       }
       if (++next_ == k) {
-        cholesky_ = ResumableCholesky(2 * k, panel_width_, work_unit_);
+        cholesky_ = ResumableCholesky(2 * k, panel_width_);
         stage_ = Stage::Factor;
       }
       return kPairingCovarianceUnits * (a + 1);

@@ -36,7 +36,7 @@ struct RjcOptions {
   std::int64_t max_nodes_per_try = 5000;
   bool verify = true;  // enforce joint compatibility of the final hypothesis (see rjc())
   // The granularity of the joint test's resumable work (JointCompatibilityEnforcement): the
-  // multiply-adds that bound one of its steps, and its Cholesky factor's panel width.
+  // multiply-adds that bound a step of its inverse, and its Cholesky factor's panel width.
   std::int64_t work_unit = kDefaultWorkUnit;
   Eigen::Index panel_width = kDefaultPanelWidth;
   // Optional: per measurement, its position in any one frame (a join's second map). With it,
@@ -164,10 +164,10 @@ class SequentialAcceptance {
 };
 
 // enforce_joint_compatibility() as resumable work: S's blocks a pairing at a time, its
-// Cholesky factor a panel or tile at a time (ResumableCholesky), then, only if the hypothesis
-// fails, S^-1 a block of columns at a time and one removal per step. `panel_width` and
-// `work_unit` (multiply-adds) set the panels and blocks from the sizes alone, so the result
-// never depends on the slicing.
+// Cholesky factor a panel at a time (ResumableCholesky), then, only if the hypothesis fails,
+// S^-1 a block of columns at a time and one removal per step. `panel_width` and `work_unit`
+// (multiply-adds, for the inverse's blocks) set the panels and blocks from the sizes alone, so
+// the result never depends on the slicing.
 class JointCompatibilityEnforcement {
  public:
   JointCompatibilityEnforcement(std::vector<int>& feature_of, const PairingModel& model,
