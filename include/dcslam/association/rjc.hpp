@@ -254,9 +254,8 @@ class RjcSearch {
   int try_pairings_ = 0;
   double try_score_ = 0.0;
   std::vector<char> feature_used_;  // per feature of m1, during the verification
-  std::vector<Pairing> hypothesis_;
   std::vector<std::tuple<double, int, int>> conditional_;  // (distance^2, measurement, feature)
-  Eigen::MatrixXd seed_covariance_;  // S of the seed, then its factor
+  StackedHypothesis seed_;  // the try's seed hypothesis H; its covariance S_H, then S_H's factor
   Eigen::VectorXd seed_whitened_;
   double seed_distance_sq_ = 0.0;
   Eigen::MatrixXd cross_;
