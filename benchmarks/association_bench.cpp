@@ -165,7 +165,7 @@ std::vector<EkfAssociationBenchRow> benchmark_ekf_association(const std::vector<
       }
       MeasurementMatrix z(static_cast<Index>(measured.size()), 2);
       for (std::size_t i = 0; i < measured.size(); ++i) z.row(static_cast<Index>(i)) = measured[i].transpose();
-      const std::vector<Mat2> noise{R};
+      const ScanNoise noise({R}, static_cast<std::size_t>(z.rows()));
       for (Index i = 0; i < z.rows(); ++i) {
         association.candidates(map, z.row(i).transpose(), R, nearby);
         row.candidates += static_cast<double>(nearby.size());
