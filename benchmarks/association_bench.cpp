@@ -165,7 +165,7 @@ std::vector<EkfAssociationBenchRow> benchmark_ekf_association(const std::vector<
       }
       MeasurementMatrix z(static_cast<Index>(measured.size()), 2);
       for (std::size_t i = 0; i < measured.size(); ++i) z.row(static_cast<Index>(i)) = measured[i].transpose();
-      const std::vector<Mat2> noise{R};
+      const ScanNoise noise({R}, static_cast<std::size_t>(z.rows()));
       for (Index i = 0; i < z.rows(); ++i) {
         association.candidates(map, z.row(i).transpose(), R, nearby);
         row.candidates += static_cast<double>(nearby.size());
@@ -214,7 +214,7 @@ AssociationBenchResult benchmark_join_association(const std::vector<Index>& tota
   if (overlap_features < 1) throw InvalidArgument("benchmark_join_association: overlap must be >= 1");
   if (repetitions < 1) throw InvalidArgument("benchmark_join_association: repetitions must be >= 1");
   std::mt19937_64 rng(seed);
-  const double gate = chi2_quantile(2, JoinOptions().gate_confidence);
+  const double gate = chi2_quantile(2, JoinOptions().rjc.confidence);
   AssociationBenchResult result;
   std::vector<double> n, rjc_seconds, jcbb_seconds, all_pairs_seconds;
   for (Index total : total_features) {
@@ -229,7 +229,7 @@ AssociationBenchResult benchmark_join_association(const std::vector<Index>& tota
     row.true_pairs = static_cast<int>(associate_by_id(maps.first, maps.second).size());
 
     JoinOptions options;
-    options.seed = seed;
+    options.rjc.seed = seed;
     JoinAssociationResult association;
     options.association = JoinAssociation::Rjc;
     row.seconds_rjc = median_seconds(repetitions, [&] { association = associate_maps(frame, options); });

@@ -29,12 +29,12 @@ constexpr EkfAssociation::Index kLinearScanFeatures = 64;
 
 void EkfPairingModel::reset(const GaussianMap& map, ObservationModel observation,
                             const Vec3& sensor_offset, const MeasurementsRef& z,
-                            const std::vector<Mat2>& R) {
+                            const ScanNoise& R) {
   map_ = &map;
   observation_ = observation;
   sensor_offset_ = sensor_offset;
   z_ = z;
-  R_ = &R;
+  R_ = R;
   for (int feature : prepared_features_) slot_of_feature_[static_cast<std::size_t>(feature)] = -1;
   prepared_features_.clear();
   predictions_.clear();
@@ -64,7 +64,7 @@ const EkfPairingModel::Prediction& EkfPairingModel::prediction(int feature) cons
 }
 
 const Mat2& EkfPairingModel::noise(int measurement) const {
-  return R_->size() == 1 ? (*R_)[0] : (*R_)[static_cast<std::size_t>(measurement)];
+  return R_[static_cast<std::size_t>(measurement)];
 }
 
 Vec2 EkfPairingModel::innovation(const Pairing& pairing) const {
@@ -228,7 +228,7 @@ void EkfAssociation::candidates_within(const GaussianMap& map, const Vec2& z, do
   std::sort(out.begin(), out.end());  // hash order is arbitrary; keep runs reproducible
 }
 
-void EkfAssociation::fill_likelihood(const MeasurementsRef& z, const std::vector<Mat2>& R) {
+void EkfAssociation::fill_likelihood(const MeasurementsRef& z, const ScanNoise& R) {
   const auto m = static_cast<std::size_t>(z.rows());
   likelihood_.log_unexplained_density.resize(m);
   likelihood_.log_noise_det.resize(m);
@@ -240,24 +240,22 @@ void EkfAssociation::fill_likelihood(const MeasurementsRef& z, const std::vector
                                 ? std::abs(z(static_cast<Index>(i), 0))
                                 : 1.0;
     likelihood_.log_unexplained_density[i] = log_density + std::log(jacobian);
-    const Mat2& noise = R.size() == 1 ? R[0] : R[i];
-    likelihood_.log_noise_det[i] = std::log((0.5 * (noise + noise.transpose())).determinant());
+    likelihood_.log_noise_det[i] = std::log(R[i].determinant());
   }
 }
 
 void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
-                               const std::vector<Mat2>& R, std::vector<Index>& pairing,
+                               const ScanNoise& R, std::vector<Index>& pairing,
                                std::map<std::string, double>& counters) {
   const auto m = static_cast<std::size_t>(z.rows());
   pairing.assign(m, kNewFeature);
   if (m == 0 || map.num_features() == 0) return;
-  const auto noise = [&R](std::size_t i) -> const Mat2& { return R.size() == 1 ? R[0] : R[i]; };
 
   // Keep the cell about one query radius wide, so a query touches about 3x3 cells.
   radii_.resize(m);
   double largest_radius = 0.0;
   for (std::size_t i = 0; i < m; ++i) {
-    radii_[i] = query_radius(map, z.row(static_cast<Index>(i)).transpose(), noise(i));
+    radii_[i] = query_radius(map, z.row(static_cast<Index>(i)).transpose(), R[i]);
     largest_radius = std::max(largest_radius, radii_[i]);
   }
   if (std::isfinite(largest_radius) && largest_radius > 0.0 &&

@@ -302,21 +302,33 @@ std::vector<int> nearest_neighbour(const CandidateLists& candidates, const Pairi
   return feature_of;
 }
 
-StackedHypothesis stack_hypothesis(const std::vector<int>& feature_of, const PairingModel& model) {
-  StackedHypothesis stacked;
+StackedHypothesis::StackedHypothesis(const std::vector<int>& feature_of) {
   for (std::size_t i = 0; i < feature_of.size(); ++i) {
-    if (feature_of[i] != kStar) stacked.pairings.push_back(Pairing{static_cast<int>(i), feature_of[i]});
+    if (feature_of[i] != kStar) pairings.push_back(Pairing{static_cast<int>(i), feature_of[i]});
   }
-  const auto k = static_cast<Eigen::Index>(stacked.pairings.size());
-  stacked.innovation.resize(2 * k);
-  stacked.covariance.resize(2 * k, 2 * k);
-  for (Eigen::Index a = 0; a < k; ++a) {
-    stacked.innovation.segment<2>(2 * a) = model.innovation(stacked.pairings[a]);
-    for (Eigen::Index b = 0; b <= a; ++b) {
-      const Mat2 block = model.covariance(stacked.pairings[a], stacked.pairings[b]);
-      stacked.covariance.block<2, 2>(2 * a, 2 * b) = block;
-      stacked.covariance.block<2, 2>(2 * b, 2 * a) = block.transpose();
-    }
+  resize();
+}
+
+void StackedHypothesis::resize() {
+  const auto k = static_cast<Eigen::Index>(pairings.size());
+  innovation.resize(2 * k);
+  covariance.resize(2 * k, 2 * k);
+}
+
+void StackedHypothesis::stack(Eigen::Index a, const PairingModel& model) {
+  const Pairing& pairing = pairings[static_cast<std::size_t>(a)];
+  innovation.segment<2>(2 * a) = model.innovation(pairing);
+  for (Eigen::Index b = 0; b <= a; ++b) {
+    const Mat2 block = model.covariance(pairing, pairings[static_cast<std::size_t>(b)]);
+    covariance.block<2, 2>(2 * a, 2 * b) = block;
+    covariance.block<2, 2>(2 * b, 2 * a) = block.transpose();
+  }
+}
+
+StackedHypothesis stack_hypothesis(const std::vector<int>& feature_of, const PairingModel& model) {
+  StackedHypothesis stacked(feature_of);
+  for (Eigen::Index a = 0; a < static_cast<Eigen::Index>(stacked.pairings.size()); ++a) {
+    stacked.stack(a, model);
   }
   return stacked;
 }

@@ -63,6 +63,7 @@ void check_options(const RjcOptions& options) {
   }
   if (options.max_tries < 1) throw InvalidArgument("RjcOptions.max_tries must be >= 1");
   if (options.work_unit < 1) throw InvalidArgument("RjcOptions.work_unit must be >= 1");
+  if (options.panel_width < 1) throw InvalidArgument("RjcOptions.panel_width must be >= 1");
 }
 
 }  // namespace
@@ -70,7 +71,7 @@ void check_options(const RjcOptions& options) {
 int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel& model,
                                 double confidence, double* joint_distance_sq) {
   JointCompatibilityEnforcement enforcement(feature_of, model, confidence,
-                                            RjcOptions().work_unit);
+                                            RjcOptions().panel_width, RjcOptions().work_unit);
   while (!enforcement.done()) enforcement.step();
   if (joint_distance_sq != nullptr) *joint_distance_sq = enforcement.joint_distance_sq();
   return enforcement.removed();
@@ -179,18 +180,14 @@ std::int64_t SequentialAcceptance::remaining_work() const {
 JointCompatibilityEnforcement::JointCompatibilityEnforcement(std::vector<int>& feature_of,
                                                              const PairingModel& model,
                                                              double confidence,
+                                                             Eigen::Index panel_width,
                                                              std::int64_t work_unit)
-    : feature_of_(feature_of), model_(model), confidence_(confidence), work_unit_(work_unit) {
-  for (std::size_t i = 0; i < feature_of.size(); ++i) {
-    if (feature_of[i] != kStar) stacked_.pairings.push_back(Pairing{static_cast<int>(i), feature_of[i]});
-  }
-  const auto k = static_cast<Eigen::Index>(stacked_.pairings.size());
-  stacked_.innovation.resize(2 * k);
-  stacked_.covariance.resize(2 * k, 2 * k);
-  if (k == 0) stage_ = Stage::Done;
+    : feature_of_(feature_of), model_(model), confidence_(confidence), panel_width_(panel_width),
+      work_unit_(work_unit), stacked_(feature_of) {
+  if (stacked_.pairings.empty()) stage_ = Stage::Done;
 }
 
-// S is stacked as stack_hypothesis() does, a block row per step; it is then factored, and
+// S is stacked a block row per step (StackedHypothesis::stack()); it is then factored, and
 // usually the hypothesis passes as it is: the factor alone decides (k^3 / 3), and the inverse
 // (three times that) is only formed when pairings have to go. Removing pairing a leaves
 // (S_rr)^-1 = L_rr - L_ra L_aa^-1 L_ar (L = S^-1): the same rank-2 update applied to the whole
@@ -205,14 +202,9 @@ std::int64_t JointCompatibilityEnforcement::step() {
   switch (stage_) {
     case Stage::Stack: {
       const Eigen::Index a = next_;
-      innovation.segment<2>(2 * a) = model_.innovation(pairings[a]);
-      for (Eigen::Index b = 0; b <= a; ++b) {
-        const Mat2 block = model_.covariance(pairings[a], pairings[b]);
-        covariance.block<2, 2>(2 * a, 2 * b) = block;
-        covariance.block<2, 2>(2 * b, 2 * a) = block.transpose();
-      }
+      stacked_.stack(a, model_);
       if (++next_ == k) {
-        cholesky_ = ResumableCholesky(2 * k, 64, work_unit_);
+        cholesky_ = ResumableCholesky(2 * k, panel_width_);
         stage_ = Stage::Factor;
       }
       return kPairingCovarianceUnits * (a + 1);
@@ -419,7 +411,6 @@ std::int64_t RjcSearch::start() {
   sample_.resize(static_cast<std::size_t>(b));
   sample_candidates_.resize(static_cast<std::size_t>(b));
   feature_of_.assign(m, kStar);
-  seed_covariance_.resize(2 * b, 2 * b);
   cross_.resize(2 * b, 2);
   best_pairings_ = 0;
   best_score_ = std::numeric_limits<double>::infinity();
@@ -459,24 +450,19 @@ std::int64_t RjcSearch::seed() {
 
   std::fill(feature_of_.begin(), feature_of_.end(), kStar);
   used_features_.clear();
-  hypothesis_.clear();
-  Eigen::VectorXd seed_innovation(2 * b);
+  seed_.pairings.clear();
   for (int k = 0; k < b; ++k) {
     const Pairing pairing{sample_[static_cast<std::size_t>(k)], seed.feature_of[k]};
-    hypothesis_.push_back(pairing);
+    seed_.pairings.push_back(pairing);
     feature_of_[pairing.measurement] = pairing.feature;
     used_features_.push_back(pairing.feature);
-    seed_innovation.segment<2>(2 * k) = model_.innovation(pairing);
-    for (int c = 0; c <= k; ++c) {
-      const Mat2 block = model_.covariance(pairing, hypothesis_[static_cast<std::size_t>(c)]);
-      seed_covariance_.block<2, 2>(2 * k, 2 * c) = block;
-      seed_covariance_.block<2, 2>(2 * c, 2 * k) = block.transpose();
-    }
   }
-  const Eigen::LLT<Eigen::MatrixXd> seed_factor(seed_covariance_);
+  seed_.resize();
+  for (int k = 0; k < b; ++k) seed_.stack(k, model_);
+  const Eigen::LLT<Eigen::MatrixXd> seed_factor(seed_.covariance);
   if (seed_factor.info() != Eigen::Success) return work;
-  seed_covariance_ = seed_factor.matrixL();
-  seed_whitened_ = seed_factor.matrixL().solve(seed_innovation);
+  seed_.covariance = seed_factor.matrixL();
+  seed_whitened_ = seed_factor.matrixL().solve(seed_.innovation);
   seed_distance_sq_ = seed.joint_distance_sq;
   conditional_.clear();
   next_overlap_ = 0;
@@ -517,17 +503,17 @@ std::int64_t RjcSearch::conditional_next() {
   const int measurement = overlap_[next_overlap_];
   std::int64_t work = 1;
   if (feature_of_[measurement] == kStar) {
-    const auto lower = seed_covariance_.triangularView<Eigen::Lower>();
+    const auto lower = seed_.covariance.triangularView<Eigen::Lower>();
     for (int feature : candidates_[measurement]) {
       if (std::find(used_features_.begin(), used_features_.end(), feature) != used_features_.end()) {
         continue;
       }
       const Pairing pairing{measurement, feature};
-      for (std::size_t k = 0; k < hypothesis_.size(); ++k) {
-        cross_.middleRows<2>(2 * static_cast<Eigen::Index>(k)) = model_.covariance(hypothesis_[k], pairing);
+      for (std::size_t k = 0; k < seed_.pairings.size(); ++k) {
+        cross_.middleRows<2>(2 * static_cast<Eigen::Index>(k)) = model_.covariance(seed_.pairings[k], pairing);
       }
       lower.solveInPlace(cross_);
-      work += kPairingCovarianceUnits * static_cast<std::int64_t>(hypothesis_.size() + 1) +
+      work += kPairingCovarianceUnits * static_cast<std::int64_t>(seed_.pairings.size() + 1) +
               static_cast<std::int64_t>(cross_.size());
       const Vec2 innovation = model_.innovation(pairing) - cross_.transpose() * seed_whitened_;
       const Mat2 covariance = model_.covariance(pairing, pairing) - cross_.transpose() * cross_;
@@ -547,7 +533,7 @@ std::int64_t RjcSearch::complete_try() {
   std::sort(conditional_.begin(), conditional_.end());
   int pairings = options_.b;
   double score = seed_distance_sq_;
-  order_ = hypothesis_;
+  order_ = seed_.pairings;
   for (const auto& [distance_sq, measurement, feature] : conditional_) {
     if (feature_of_[measurement] != kStar) continue;
     if (std::find(used_features_.begin(), used_features_.end(), feature) != used_features_.end()) {
@@ -694,7 +680,8 @@ void RjcSearch::end_of_verification() {
     result_.pairings = kept;
     stage_ = Stage::Done;
   } else {
-    joint_.emplace(result_.feature_of, model_, options_.confidence, options_.work_unit);
+    joint_.emplace(result_.feature_of, model_, options_.confidence, options_.panel_width,
+                   options_.work_unit);
     stage_ = Stage::Joint;
   }
 }

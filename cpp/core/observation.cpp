@@ -63,4 +63,12 @@ Vec2 innovation(ObservationModel model, const Vec2& z, const Vec2& z_hat) {
   return nu;
 }
 
+void ScanNoise::assign(const std::vector<Mat2>& R, std::size_t measurements) {
+  noise_.resize(measurements);
+  for (std::size_t i = 0; i < measurements; ++i) {
+    const Mat2& Ri = R.size() == 1 ? R[0] : R[i];
+    noise_[i] = 0.5 * (Ri + Ri.transpose());
+  }
+}
+
 }  // namespace dcslam

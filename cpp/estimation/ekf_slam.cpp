@@ -17,10 +17,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-const Mat2& covariance_of(const std::vector<Mat2>& R, std::size_t measurement) {
-  return R.size() == 1 ? R[0] : R[measurement];
-}
-
 // Inputs pass a relative symmetry test only; the filter uses their symmetric part so that P
 // stays exactly symmetric.
 template <typename Matrix>
@@ -185,6 +181,7 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
   check_measurements(z, R, landmark_ids, config_.observation, config_.association, "update");
   const auto start = Clock::now();
   const auto m = static_cast<std::size_t>(z.rows());
+  noise_.assign(R, m);
 
   remove_tentative(
       [this](const Track& track) {
@@ -192,10 +189,10 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
                track.first_seen_step > keep_until_step_;
       });
   const auto association_start = Clock::now();
-  associate(z, R, landmark_ids);
+  associate(z, noise_, landmark_ids);
   const double association_seconds =
       std::chrono::duration<double>(Clock::now() - association_start).count();
-  update_paired(z, R);
+  update_paired(z, noise_);
   if (association_ && !paired_measurements_.empty()) association_->map_updated(map_);
 
   // New features come from the robot as updated by the paired measurements (docs/design.md §3.3).
@@ -216,7 +213,7 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
     } else if (decision == kNewFeature) {
       const std::int64_t id = landmark_ids ? (*landmark_ids)[i] : next_fresh_id_++;
       const Index index =
-          add_feature(z.row(static_cast<Index>(i)).transpose(), covariance_of(R, i), id);
+          add_feature(z.row(static_cast<Index>(i)).transpose(), noise_[i], id);
       index_of_id_[id] = index;
       tracks_.push_back(Track{1, step_, step_, {}});
       if (association_) association_->feature_added(map_, index);
@@ -236,7 +233,7 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
   return assigned;
 }
 
-void EkfSlam::associate(const MeasurementsRef& z, const std::vector<Mat2>& R,
+void EkfSlam::associate(const MeasurementsRef& z, const ScanNoise& R,
                         const std::vector<std::int64_t>* landmark_ids) {
   if (association_) {
     association_->associate(map_, z, R, pairing_, stats_.counters);
@@ -269,7 +266,7 @@ void EkfSlam::ensure_workspace(Index rows, Index measurement_rows) {
   }
 }
 
-void EkfSlam::update_paired(const MeasurementsRef& z, const std::vector<Mat2>& R) {
+void EkfSlam::update_paired(const MeasurementsRef& z, const ScanNoise& R) {
   paired_measurements_.clear();
   for (std::size_t i = 0; i < pairing_.size(); ++i) {
     if (pairing_[i] >= 0) paired_measurements_.push_back(static_cast<Index>(i));
@@ -319,7 +316,7 @@ void EkfSlam::update_paired(const MeasurementsRef& z, const std::vector<Mat2>& R
     const Index offset = GaussianMap::feature_offset(pairing_[i]);
     S.middleRows<2>(2 * a).noalias() = H_robot_[static_cast<std::size_t>(a)] * PHt.topRows<3>();
     S.middleRows<2>(2 * a).noalias() += H_feature_[static_cast<std::size_t>(a)] * PHt.middleRows<2>(offset);
-    S.block<2, 2>(2 * a, 2 * a) += symmetric_part(covariance_of(R, i));
+    S.block<2, 2>(2 * a, 2 * a) += R[i];
   }
 
   // In-place Cholesky S = L L' (reads the lower triangle only). A measurement at a range that
@@ -381,7 +378,7 @@ EkfSlam::Index EkfSlam::add_feature(const Vec2& z, const Mat2& R, std::int64_t i
     P.block<1, 2>(j, offset) = column.transpose();
   }
   const Mat2 P_ff = G_R * P.topLeftCorner<3, 3>() * G_R.transpose() +
-                    G_z * symmetric_part(R) * G_z.transpose();
+                    G_z * R * G_z.transpose();
   P.block<2, 2>(offset, offset) = symmetric_part(P_ff);
   return index;
 }

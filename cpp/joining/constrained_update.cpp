@@ -78,16 +78,14 @@ void ConstrainedUpdate::begin_factor() {
                              gain_.middleRows<2>(d1 + GaussianMap::feature_offset(j));
   }
   S = 0.5 * (S + S.transpose()).eval();
-  next_panel_ = 0;
+  cholesky_ = ResumableCholesky(2 * r, options_.block_columns);
 }
 
-// One panel of S = L L' (factor_panel()); the order of operations is fixed, so slicing never
-// changes the result.
+// One panel of S = L L' (ResumableCholesky); the order of operations is fixed, so slicing
+// never changes the result.
 std::int64_t ConstrainedUpdate::factor_next_panel() {
-  const std::int64_t cost =
-      factor_constraint_panel(constraint_factor_, next_panel_, options_.block_columns);
-  next_panel_ = std::min<Index>(constraint_factor_.rows(), next_panel_ + options_.block_columns);
-  if (next_panel_ == constraint_factor_.rows()) {
+  const std::int64_t cost = factor_constraint_panel(cholesky_, constraint_factor_);
+  if (cholesky_.done()) {
     constraint_factor_.triangularView<Eigen::Lower>().solveInPlace(whitened_h_);
     next_solve_row_ = 0;
   }

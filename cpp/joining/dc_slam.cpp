@@ -89,10 +89,10 @@ void DCSlam::set_join_oracle(std::shared_ptr<const JoinOracle> oracle) {
 JoinOptions DCSlam::join_options(int index, std::int64_t first_robot_id) const {
   JoinOptions options;
   options.association = config_.join_association;
-  options.gate_confidence = config_.gate_confidence;
-  options.rjc_b = config_.rjc_b;
-  options.rjc_p_good = config_.rjc_p_good;
-  options.rjc_p_fail = config_.rjc_p_fail;
+  options.rjc.confidence = config_.gate_confidence;
+  options.rjc.b = config_.rjc_b;
+  options.rjc.p_good = config_.rjc_p_good;
+  options.rjc.p_fail = config_.rjc_p_fail;
   options.max_iterations = config_.join_iterations;
   options.feature_sigma = config_.join_feature_sigma;
   // Every local-map boundary is the R1 of exactly one join of the tree (or of the anytime
@@ -101,7 +101,7 @@ JoinOptions DCSlam::join_options(int index, std::int64_t first_robot_id) const {
   options.first_robot_id = first_robot_id;
   options.oracle = join_oracle_;
   // One reproducible stream per join, whatever the order in which joins are run.
-  options.seed = config_.seed ^ (0x9E3779B97F4A7C15ULL * static_cast<std::uint64_t>(index + 1));
+  options.rjc.seed = config_.seed ^ (0x9E3779B97F4A7C15ULL * static_cast<std::uint64_t>(index + 1));
   return options;
 }
 

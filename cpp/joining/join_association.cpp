@@ -20,7 +20,7 @@ using Index = Eigen::Index;
 
 // Confidence of the individual gate that builds the candidate lists. It only prunes: the
 // decisions are taken by the joint test (JCBB) or by the gate conditioned on the seed
-// hypothesis (RJC), both at options.gate_confidence. The marginal pair covariance holds the
+// hypothesis (RJC), both at options.rjc.confidence. The marginal pair covariance holds the
 // uncertainty of the relative pose of the two maps, an error shared by every pair that the
 // joint and conditional tests explain away; a true pair whose marginal distance exceeds the
 // decision gate is often compatible given the other pairs (e.g. marginal D^2 = 11.9,
@@ -31,9 +31,6 @@ using Index = Eigen::Index;
 double candidate_confidence(double gate_confidence) { return 1.0 - 0.1 * (1.0 - gate_confidence); }
 
 }  // namespace
-
-// Interpretation-tree nodes of the JCBB that decides when every RJC try failed.
-constexpr std::int64_t kJcbbFallbackNodes = 20000;
 
 Vec2 JoinPairingModel::innovation(const Pairing& p) const {
   return frame_.moved_second_feature(p.measurement) - frame_.first_feature(p.feature);
@@ -102,7 +99,7 @@ std::int64_t JoinAssociator::prepare() {
     stage_ = Stage::Done;
     return 1;
   }
-  const double pruning_confidence = candidate_confidence(options_.gate_confidence);
+  const double pruning_confidence = candidate_confidence(options_.rjc.confidence);
   pruning_gate_ = chi2_quantile(2, pruning_confidence);
   gate_radius_ = std::sqrt(pruning_gate_);
   for (Index i = 0; i < n1; ++i) sigma_first_ = std::max(sigma_first_, largest_std(frame_.first_first(i, i)));
@@ -144,16 +141,9 @@ std::int64_t JoinAssociator::candidates_of_next() {
   // fewer than p_good of the overlap features have a partner, and on a revisit whose maps
   // overlap widely the second map would otherwise be added whole, every landmark twice), a
   // node-bounded JCBB decides instead.
-  const bool small_overlap = result_.overlap <= 3 * options_.rjc_b;
+  const bool small_overlap = result_.overlap <= kRjcMinOverlapSamples * options_.rjc.b;
   if (options_.association == JoinAssociation::Rjc && !small_overlap) {
-    RjcOptions rjc_options;
-    rjc_options.b = options_.rjc_b;
-    rjc_options.p_good = options_.rjc_p_good;
-    rjc_options.p_fail = options_.rjc_p_fail;
-    rjc_options.confidence = options_.gate_confidence;
-    rjc_options.seed = options_.seed;
-    rjc_options.max_nodes_per_try = 5000;  // b = 4 seeds: a bounded search of 4 levels
-    rjc_options.work_unit = options_.work_unit;
+    RjcOptions rjc_options = options_.rjc;
     auto positions = std::make_shared<std::vector<Vec2>>();
     positions->reserve(candidates_.size());
     for (Index j = 0; j < frame_.second().num_features(); ++j) positions->push_back(frame_.second().feature(j));
@@ -184,8 +174,8 @@ std::int64_t JoinAssociator::advance_rjc(std::int64_t budget) {
 // mode by its own node bound only.
 std::int64_t JoinAssociator::run_jcbb() {
   JcbbOptions jcbb_options;
-  jcbb_options.confidence = options_.gate_confidence;
-  if (options_.association == JoinAssociation::Rjc) jcbb_options.max_nodes = kJcbbFallbackNodes;
+  jcbb_options.confidence = options_.rjc.confidence;
+  if (options_.association == JoinAssociation::Rjc) jcbb_options.max_nodes = options_.fallback_jcbb_nodes;
   const JcbbResult jcbb_result = jcbb(candidates_, model_, jcbb_options);
   std::int64_t candidate_count = 0;  // before finish() releases the lists
   for (const auto& list : candidates_) candidate_count += static_cast<std::int64_t>(list.size());
@@ -245,7 +235,7 @@ void JoinAssociator::audit_oracle(const std::vector<int>& truth) {
     order.push_back(Pairing{static_cast<int>(audit[k].second), static_cast<int>(audit[k].first)});
     kept[static_cast<std::size_t>(audit[k].second)] = static_cast<int>(audit[k].first);
   }
-  accept_sequentially(order, 0, kept, model_, chi2_quantile(2, options_.gate_confidence));
+  accept_sequentially(order, 0, kept, model_, chi2_quantile(2, options_.rjc.confidence));
   for (std::size_t k : by_distance) {
     audit[k].consistent = kept[static_cast<std::size_t>(audit[k].second)] != kStar;
   }

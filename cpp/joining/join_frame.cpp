@@ -11,8 +11,8 @@ namespace dcslam {
 
 using Index = Eigen::Index;
 
-std::int64_t factor_constraint_panel(Eigen::MatrixXd& S, Index k0, Index width) {
-  const std::int64_t work = factor_panel(S, k0, width);
+std::int64_t factor_constraint_panel(ResumableCholesky& cholesky, Eigen::MatrixXd& S) {
+  const std::int64_t work = cholesky.step(S);
   if (work < 0) {
     throw std::runtime_error(
         "map join: the covariance of the matched-pair constraints is not positive definite "

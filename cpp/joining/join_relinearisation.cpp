@@ -51,7 +51,7 @@ void JoinRelinearisation::begin(const GaussianMap& first, const GaussianMap& sec
   state_.covariance.resize(ds, ds);
   state_.gathered = 0;
   state_.next_build = 0;
-  state_.next_panel = -1;
+  state_.factor_built = false;
 }
 
 // One unit of the re-linearisation: first s0 and P_ss gathered a block of columns at a time
@@ -102,7 +102,7 @@ std::int64_t JoinRelinearisation::unit() {
     }
     return join_cost::gather(end - begin, ds);
   }
-  if (gn.next_panel < 0) {
+  if (!gn.factor_built) {
     Eigen::MatrixXd& PHt = gn.gain;
     Eigen::MatrixXd& S = gn.factor;
     const Index pairs_per_unit = join_cost::relinearise_pairs_per_unit(work_unit_, ds, r);
@@ -147,15 +147,12 @@ std::int64_t JoinRelinearisation::unit() {
     gn.next_build = end;
     if (end == 2 * r) {
       gn.next_build = 0;
-      gn.next_panel = 0;
+      gn.factor_built = true;
+      gn.cholesky = ResumableCholesky(2 * r, block_columns_);
     }
     return std::max<std::int64_t>(1, work);
   }
-  if (gn.next_panel < gn.factor.rows()) {
-    const std::int64_t cost = factor_constraint_panel(gn.factor, gn.next_panel, block_columns_);
-    gn.next_panel += block_columns_;
-    return cost;
-  }
+  if (!gn.cholesky.done()) return factor_constraint_panel(gn.cholesky, gn.factor);
   // The Gauss–Newton step, and Newton's (docs/divide_and_conquer.md): with the last step's
   // multipliers the Lagrangian's curvature Σ λ_k ∇²c_k is U B U', U = [e_θ, a] (a: -Rot_θ' λ_k
   // on each f_j, Rot_θ = dRot/dθ), B = [h 1; 1 0] (h = Σ λ_k' Rot f_j). M = P^-1 - U B U' has
@@ -250,7 +247,7 @@ std::int64_t JoinRelinearisation::unit() {
   s = std::move(next);
   ++gn.steps;
   if (gn.steps + 1 >= max_iterations_) gn.converged = true;
-  gn.next_panel = -1;
+  gn.factor_built = false;
   // Both steps' solves and products.
   return join_cost::step_solve(ds, r);
 }

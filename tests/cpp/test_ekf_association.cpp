@@ -80,7 +80,7 @@ TEST_P(EkfAssociationTest, PairingModelCovarianceEqualsDenseHPHt) {
     R.push_back(noise_for(observation) * (1.0 + i));
   }
   EkfPairingModel model;
-  model.reset(map, observation, kOffset, z, R);
+  model.reset(map, observation, kOffset, z, ScanNoise(R, static_cast<std::size_t>(z.rows())));
   for (int j = 0; j < map.num_features(); ++j) model.prepare(j);
   for (int i = 0; i < 3; ++i) {
     for (int j = 0; j < map.num_features(); ++j) {
@@ -105,7 +105,7 @@ TEST_P(EkfAssociationTest, PairingModelCovarianceEqualsDenseHPHt) {
 std::vector<int> gate_passing(const GaussianMap& map, ObservationModel observation, const MeasurementMatrix& z,
                               const std::vector<Mat2>& R, int measurement, double gate) {
   EkfPairingModel model;
-  model.reset(map, observation, kOffset, z, R);
+  model.reset(map, observation, kOffset, z, ScanNoise(R, static_cast<std::size_t>(z.rows())));
   std::vector<int> passing;
   for (int j = 0; j < map.num_features(); ++j) {
     model.prepare(j);
@@ -173,7 +173,7 @@ TEST_P(EkfAssociationTest, CandidateSearchNeverMissesAGatePassingFeature) {
     // A full association first: it resizes the hash cells to the scan's radii.
     std::vector<Index> pairing;
     std::map<std::string, double> counters;
-    association.associate(map, z, R, pairing, counters);
+    association.associate(map, z, ScanNoise(R, static_cast<std::size_t>(z.rows())), pairing, counters);
     std::vector<int> found;
     for (int i = 0; i < 8; ++i) {
       association.candidates(map, z.row(i).transpose(), R[static_cast<std::size_t>(i)], found);
@@ -219,14 +219,14 @@ std::vector<Index> filter_pairing(const SlamConfig& config, const GaussianMap& m
   EkfAssociation association(config);
   for (Index k = 0; k < map.num_features(); ++k) association.feature_added(map, k);
   std::vector<Index> pairing;
-  association.associate(map, z, R, pairing, counters);
+  association.associate(map, z, ScanNoise(R, static_cast<std::size_t>(z.rows())), pairing, counters);
   return pairing;
 }
 
 // The oracles' pairing model, with every feature's prediction prepared.
 void prepare_every_feature(EkfPairingModel& model, const GaussianMap& map, ObservationModel observation,
                            const MeasurementMatrix& z, const std::vector<Mat2>& R) {
-  model.reset(map, observation, kOffset, z, R);
+  model.reset(map, observation, kOffset, z, ScanNoise(R, static_cast<std::size_t>(z.rows())));
   for (int j = 0; j < map.num_features(); ++j) model.prepare(j);
 }
 

@@ -136,7 +136,7 @@ std::pair<GaussianMap, GaussianMap> two_local_maps(const std::vector<SlamStep>& 
 JoinOptions options_for(JoinAssociation association, std::uint64_t seed = 7) {
   JoinOptions options;
   options.association = association;
-  options.seed = seed;
+  options.rjc.seed = seed;
   return options;
 }
 
@@ -238,7 +238,7 @@ TEST_P(JoinAssociationModes, ResumedInSlicesGivesBitwiseTheSameResult) {
   const JoinOptions options = options_for(GetParam());
   const JoinFrame frame(first, second);
   const JoinAssociationResult at_once = associate_maps(frame, options);
-  ASSERT_GT(at_once.overlap, 3 * options.rjc_b);  // RJC really runs in "rjc" mode
+  ASSERT_GT(at_once.overlap, kRjcMinOverlapSamples * options.rjc.b);  // RJC really runs in "rjc" mode
   for (std::int64_t budget : {1, 300}) {
     JoinAssociator associator(frame, options);
     std::int64_t calls = 0;

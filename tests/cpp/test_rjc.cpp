@@ -246,11 +246,11 @@ TEST(Rjc, VerificationDropsTheInconsistentPairing) {
   EXPECT_EQ(enforce_joint_compatibility(feature_of, problem.model, 0.99, &distance_sq), 1);
   EXPECT_EQ(feature_of, problem.truth);
   EXPECT_NEAR(distance_sq, joint_distance_sq(problem.truth, problem.model), 1e-8);
-  // Removal through S^-1 formed a column at a time and S factored in one-column tiles: the
+  // Removal through S^-1 formed a column at a time and S factored in one-column panels: the
   // same decision.
   std::vector<int> sliced = problem.truth;
   sliced[spurious] = 5 * 6 + 0;
-  JointCompatibilityEnforcement enforcement(sliced, problem.model, 0.99, 1);
+  JointCompatibilityEnforcement enforcement(sliced, problem.model, 0.99, 1, 1);
   int steps = 0;
   while (!enforcement.done()) {
     enforcement.step();

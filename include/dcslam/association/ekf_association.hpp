@@ -36,7 +36,7 @@ class EkfPairingModel : public PairingModel {
 
   // Forgets the prepared features; the references must outlive the model's use.
   void reset(const GaussianMap& map, ObservationModel observation, const Vec3& sensor_offset,
-             const MeasurementsRef& z, const std::vector<Mat2>& R);
+             const MeasurementsRef& z, const ScanNoise& R);
   // Computes h(x_R, f_j) and its Jacobians once; O(1), idempotent.
   void prepare(int feature);
 
@@ -60,7 +60,7 @@ class EkfPairingModel : public PairingModel {
   ObservationModel observation_ = ObservationModel::RangeBearing;
   Vec3 sensor_offset_ = Vec3::Zero();
   MeasurementMatrix z_;  // a copy: the caller's view may not outlive reset()
-  const std::vector<Mat2>* R_ = nullptr;
+  ScanNoise R_;  // a copy, like z_
   std::vector<int> slot_of_feature_;     // -1 = not prepared; only prepared entries are reset
   std::vector<int> prepared_features_;
   std::vector<Prediction> predictions_;
@@ -85,7 +85,7 @@ class EkfAssociation {
 
   // Fills pairing (one entry per measurement: feature index, kNewFeature or kRejected).
   // Counters "jcbb_nodes" and "jcbb_bound_hits" are added to `counters`.
-  void associate(const GaussianMap& map, const MeasurementsRef& z, const std::vector<Mat2>& R,
+  void associate(const GaussianMap& map, const MeasurementsRef& z, const ScanNoise& R,
                  std::vector<Index>& pairing, std::map<std::string, double>& counters);
 
   // Feature indices of the hash entries whose gate region may contain a feature paired with
@@ -123,7 +123,7 @@ class EkfAssociation {
   void rebuild_hash(const GaussianMap& map, double cell_size);
   // JcbbLikelihood of the scan: the unexplained density in measurement space at each z_i and
   // ln det R_i, the floor of every pairing's conditional innovation covariance.
-  void fill_likelihood(const MeasurementsRef& z, const std::vector<Mat2>& R);
+  void fill_likelihood(const MeasurementsRef& z, const ScanNoise& R);
   double slack() const;
 
   SlamConfig config_;

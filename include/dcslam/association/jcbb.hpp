@@ -163,17 +163,28 @@ CandidateLists individually_compatible(const CandidateLists& candidates,
 std::vector<int> nearest_neighbour(const CandidateLists& candidates, const PairingModel& model,
                                    double confidence);
 
-// Joint Mahalanobis distance of a whole hypothesis computed directly (stacked nu and S,
-// O(|H|^3)); 0 for an empty one, +inf if S_H is not positive definite.
-// The pairings of a hypothesis (kStar skipped, in measurement order) with their stacked
-// innovation and joint covariance, built directly from the model (O(|H|^2) blocks).
+// The pairings of a hypothesis with their stacked innovation nu_H and joint covariance S_H,
+// built directly from the model a pairing (a block row) at a time: the one way a hypothesis is
+// stacked, by stack_hypothesis(), RJC's seeds and its resumable joint test.
 struct StackedHypothesis {
+  StackedHypothesis() = default;
+  // The pairings of feature_of (kStar skipped, in measurement order), sized but not stacked.
+  explicit StackedHypothesis(const std::vector<int>& feature_of);
+  // Sizes innovation and covariance for the pairings (their entries unset).
+  void resize();
+  // Pairing a's entries of the innovation and its covariance blocks with pairings 0..a, in
+  // both triangles: O(a) blocks.
+  void stack(Eigen::Index a, const PairingModel& model);
+
   std::vector<Pairing> pairings;
   Eigen::VectorXd innovation;
   Eigen::MatrixXd covariance;
 };
+// The pairings of feature_of stacked whole (O(|H|^2) blocks).
 StackedHypothesis stack_hypothesis(const std::vector<int>& feature_of, const PairingModel& model);
 
+// Joint Mahalanobis distance of a whole hypothesis computed directly (stacked nu and S,
+// O(|H|^3)); 0 for an empty one, +inf if S_H is not positive definite.
 double joint_distance_sq(const std::vector<int>& feature_of, const PairingModel& model);
 
 }  // namespace dcslam

@@ -14,6 +14,7 @@
 #include <Eigen/Cholesky>
 
 #include "dcslam/core/blocked_cholesky.hpp"
+#include "dcslam/core/resumable_work.hpp"
 #include "dcslam/association/jcbb.hpp"
 
 namespace dcslam {
@@ -22,18 +23,22 @@ namespace dcslam {
 // resumable searches count it (a map join's is a few 2x3 by 3x2 products).
 inline constexpr std::int64_t kPairingCovarianceUnits = 16;
 
+// Every setting of RJC, with the defaults D&C's joins run with (SlamConfig's rjc_* fields set
+// b, p_good and p_fail; JoinOptions holds these settings and hands them down as they are).
 struct RjcOptions {
   int b = 4;             // measurements drawn per try and paired by JCBB*
   double p_good = 0.8;   // prior probability that an overlap measurement has a true pairing
   double p_fail = 0.01;  // accepted probability of never drawing an all-good sample
-  double confidence = 0.99;
+  double confidence = 0.99;  // of every gate and joint test RJC makes
   std::uint64_t seed = 0;
-  int max_tries = 100;                       // cap on t
-  std::int64_t max_nodes_per_try = 100000;   // JCBB node bound of each try
+  int max_tries = 100;  // cap on t
+  // JCBB* node bound of each try's seed: b = 4 measurements make a search of four levels.
+  std::int64_t max_nodes_per_try = 5000;
   bool verify = true;  // enforce joint compatibility of the final hypothesis (see rjc())
-  // Multiply-adds that bound one step of the resumable search (RjcSearch) where its sizes
-  // allow; the steps' boundaries never change the result.
-  std::int64_t work_unit = std::int64_t{1} << 18;
+  // The granularity of the joint test's resumable work (JointCompatibilityEnforcement): the
+  // multiply-adds that bound a step of its inverse, and its Cholesky factor's panel width.
+  std::int64_t work_unit = kDefaultWorkUnit;
+  Eigen::Index panel_width = kDefaultPanelWidth;
   // Optional: per measurement, its position in any one frame (a join's second map). With it,
   // when the uniform tries verify fewer than kConstellationShare of the overlap, max_tries
   // more tries draw local constellations (see rjc()).
@@ -159,13 +164,15 @@ class SequentialAcceptance {
 };
 
 // enforce_joint_compatibility() as resumable work: S's blocks a pairing at a time, its
-// Cholesky factor a panel or tile at a time (ResumableCholesky), then, only if the hypothesis
-// fails, S^-1 a block of columns at a time and one removal per step. `work_unit` (multiply-adds)
-// sets the blocks from the sizes alone, so the result never depends on the slicing.
+// Cholesky factor a panel at a time (ResumableCholesky), then, only if the hypothesis fails,
+// S^-1 a block of columns at a time and one removal per step. `panel_width` and `work_unit`
+// (multiply-adds, for the inverse's blocks) set the panels and blocks from the sizes alone, so
+// the result never depends on the slicing.
 class JointCompatibilityEnforcement {
  public:
   JointCompatibilityEnforcement(std::vector<int>& feature_of, const PairingModel& model,
-                                double confidence, std::int64_t work_unit);
+                                double confidence, Eigen::Index panel_width,
+                                std::int64_t work_unit);
   // Returns the work in units of eight multiply-adds. InvalidArgument if S is not positive
   // definite.
   std::int64_t step();
@@ -179,6 +186,7 @@ class JointCompatibilityEnforcement {
   std::vector<int>& feature_of_;
   const PairingModel& model_;
   double confidence_;
+  Eigen::Index panel_width_;
   std::int64_t work_unit_;
   Stage stage_ = Stage::Stack;
   StackedHypothesis stacked_;  // covariance: S, then L in its lower triangle
@@ -246,9 +254,8 @@ class RjcSearch {
   int try_pairings_ = 0;
   double try_score_ = 0.0;
   std::vector<char> feature_used_;  // per feature of m1, during the verification
-  std::vector<Pairing> hypothesis_;
   std::vector<std::tuple<double, int, int>> conditional_;  // (distance^2, measurement, feature)
-  Eigen::MatrixXd seed_covariance_;  // S of the seed, then its factor
+  StackedHypothesis seed_;  // the try's seed hypothesis H; its covariance S_H, then S_H's factor
   Eigen::VectorXd seed_whitened_;
   double seed_distance_sq_ = 0.0;
   Eigen::MatrixXd cross_;

@@ -77,13 +77,14 @@ class EkfSlam : public SlamFilter {
   friend struct CheckpointAccess;  // checkpoint.cpp saves and restores the state below
   // Fills pairing_ (one entry per measurement: feature index, kNewFeature or kRejected).
   // The seam for data association: "known" looks ids up; "nn"/"jcbb" run EkfAssociation.
-  void associate(const MeasurementsRef& z, const std::vector<Mat2>& R,
+  void associate(const MeasurementsRef& z, const ScanNoise& R,
                  const std::vector<std::int64_t>* landmark_ids);
   void associate_known(const std::vector<std::int64_t>& landmark_ids);
 
   // Joint EKF update with the measurements paired in pairing_.
-  void update_paired(const MeasurementsRef& z, const std::vector<Mat2>& R);
-  // Appends measurement i as a feature initialised from the current robot; returns its index.
+  void update_paired(const MeasurementsRef& z, const ScanNoise& R);
+  // Appends measurement z (noise R, symmetric) as a feature initialised from the current robot;
+  // returns its index.
   Index add_feature(const Vec2& z, const Mat2& R, std::int64_t id);
   // Copies the lower triangle of P onto the upper one.
   void mirror_lower_triangle();
@@ -139,6 +140,7 @@ class EkfSlam : public SlamFilter {
   Eigen::VectorXd innovation_;  // nu (2k), becomes L^-1 nu in place
   std::vector<Mat23> H_robot_;
   std::vector<Mat2> H_feature_;
+  ScanNoise noise_;  // this scan's R, normalised once where update() begins
 };
 
 // One step of a recorded run: the predict input, then the scan (ids only in "known" mode).

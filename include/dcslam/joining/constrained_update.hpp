@@ -52,7 +52,7 @@ class ConstrainedUpdate {
   // ending with h whitened.
   void begin_factor();
   std::int64_t factor_next_panel();
-  bool factored() const { return next_panel_ == constraint_factor_.rows(); }
+  bool factored() const { return cholesky_.done(); }
   std::int64_t solve_next_rows();
   Eigen::Index solve_rows_left() const { return gain_.rows() - next_solve_row_; }
   // The result (covariance not yet written) and the factors of the fill, once assembled.
@@ -78,7 +78,7 @@ class ConstrainedUpdate {
   Mat2 rotation_;
   Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_kept_;  // rows of J_R for m2's kept elements
   Eigen::Index next_pair_ = 0;
-  Eigen::Index next_panel_ = 0;
+  ResumableCholesky cholesky_;  // of constraint_factor_
   Eigen::MatrixXd gain_;               // P H' (rows: F1, then all of m2), then W in place
   Eigen::MatrixXd constraint_factor_;  // S, becoming L (S = L L') in its lower triangle
   Eigen::VectorXd whitened_h_;         // h, then L^-1 h

@@ -3,9 +3,9 @@
 // pairs through a spatial hash over m1's features, individual compatibility with the pair
 // covariance P_ii + P_jj - P_ij - P_ji, then JCBB over the whole overlap ("jcbb") or RJC
 // (the paper's Algorithm 3, "rjc"). The individual gate only prunes, at a tenth of the
-// decision gate's tail (0.999 for gate_confidence 0.99; the overlap counts features with a
+// decision gate's tail (0.999 for a confidence of 0.99; the overlap counts features with a
 // candidate at that level); pairs are accepted by the joint or conditional test at
-// gate_confidence.
+// JoinOptions::rjc.confidence (SlamConfig::gate_confidence).
 #include <cstdint>
 #include <optional>
 #include <utility>
@@ -20,6 +20,10 @@
 #include "dcslam/joining/join_report.hpp"
 
 namespace dcslam {
+
+// RJC runs on an overlap of more than this many samples' worth of features (3 b); a smaller
+// one goes to JCBB with the star node, exact and cheap there (docs/design.md §6).
+inline constexpr int kRjcMinOverlapSamples = 3;
 
 // Measurement = feature j of the moved m2, feature = feature i of m1; the innovation of the
 // pairing is f'_j - f_i, whose covariance is P_ii + P_jj - P_ij - P_ji in the stacked map,

@@ -9,8 +9,10 @@
 
 #include <Eigen/Core>
 
+#include "dcslam/association/rjc.hpp"
 #include "dcslam/core/config.hpp"
 #include "dcslam/core/geometry.hpp"
+#include "dcslam/core/resumable_work.hpp"
 
 namespace dcslam {
 
@@ -44,17 +46,20 @@ struct JoinLinearisation {
 
 struct JoinOptions {
   JoinAssociation association = JoinAssociation::Known;
-  double gate_confidence = 0.99;
+  // The association's settings, RJC's handed to it as they are (JoinAssociator adds only m2's
+  // feature positions). rjc.confidence is the confidence of every test the association makes,
+  // in every mode (JCBB's too, and the pruning gate's is derived from it); rjc.seed is the
+  // join's random stream.
+  RjcOptions rjc;
   double feature_sigma = 0.0;  // SlamConfig::join_feature_sigma
-  int rjc_b = 4;
-  double rjc_p_good = 0.8;
-  double rjc_p_fail = 0.01;
-  std::uint64_t seed = 0;
+  // Interpretation-tree nodes of the JCBB that decides in "rjc" mode when every RJC try failed,
+  // so that the fallback stays bounded whatever the overlap. ("jcbb" mode: JcbbOptions' bound.)
+  std::int64_t fallback_jcbb_nodes = 20000;
   // Width of the column blocks the result is written in (and of the Cholesky panels).
-  Eigen::Index block_columns = 64;
+  Eigen::Index block_columns = kDefaultPanelWidth;
   // Multiply-adds that bound one unit of resumable work (rows of a fill tile, of the solve, of
   // the assembly): small units keep amortized steps short when r is in the hundreds.
-  Eigen::Index work_unit = Eigen::Index{1} << 20;
+  Eigen::Index work_unit = kDefaultWorkUnit;
   // Linearisation points of the constraint update (Gauss–Newton steps of the iterated EKF,
   // docs/divide_and_conquer.md): 1 linearises ⊕ once at the prior means (the one-shot join);
   // more re-linearise at the constrained estimate until the step is negligible.

@@ -9,6 +9,7 @@
 
 #include <Eigen/Core>
 
+#include "dcslam/core/blocked_cholesky.hpp"
 #include "dcslam/core/gaussian_map.hpp"
 #include "dcslam/core/geometry.hpp"
 #include "dcslam/joining/join_options.hpp"
@@ -58,7 +59,8 @@ class JoinRelinearisation {
     Eigen::VectorXd rhs;
     std::vector<Eigen::Matrix<double, 2, 3>> robot_jacobians;  // J_R of each pair, this step
     Eigen::Index next_build = 0;   // pairs done: < r of P_ss H', then r + those of S's rows
-    Eigen::Index next_panel = -1;               // -1: the step's S is not built yet
+    bool factor_built = false;                  // the step's S is built (and being factored)
+    ResumableCholesky cholesky;                 // of factor
     Eigen::ArrayXd tolerance;
     std::vector<Eigen::Index> first_rows;       // rows of R1 and the matched f_i in m1
     std::vector<Eigen::Index> second_rows;      // rows of the matched f_j in m2
