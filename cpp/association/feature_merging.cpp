@@ -44,8 +44,8 @@ bool impose_equal_features(GaussianMap& map, Index a, Index b) {
   return true;
 }
 
-Index merge_partner(const GaussianMap& map, Index k, double radius, double gate, const MayBeOneLandmark& may_be_one,
-                    double feature_sigma) {
+Index merge_partner(const GaussianMap& map, Index k, double radius, double gate, double feature_sigma,
+                    const MayBeOneLandmark& may_be_one) {
   const double radius_sq = radius * radius;
   const Vec2 position = map.feature(k);
   Index partner = -1;
@@ -59,13 +59,15 @@ Index merge_partner(const GaussianMap& map, Index k, double radius, double gate,
 }
 
 std::vector<std::pair<std::int64_t, std::int64_t>> merge_duplicate_features(
-    GaussianMap& map, double radius, double gate, const MayBeOneLandmark& may_be_one, double feature_sigma,
+    GaussianMap& map, double radius, double gate, double feature_sigma, const MayBeOneLandmark& may_be_one,
     int max_rounds) {
   std::vector<std::pair<std::int64_t, std::int64_t>> merged;
   for (int round = 0; round < max_rounds; ++round) {
     const Index n = map.num_features();
     std::vector<Index> partner(static_cast<std::size_t>(n));
-    for (Index k = 0; k < n; ++k) partner[static_cast<std::size_t>(k)] = merge_partner(map, k, radius, gate, may_be_one, feature_sigma);
+    for (Index k = 0; k < n; ++k) {
+      partner[static_cast<std::size_t>(k)] = merge_partner(map, k, radius, gate, feature_sigma, may_be_one);
+    }
     std::vector<Index> dropped;
     for (Index k = 0; k < n; ++k) {
       const Index j = partner[static_cast<std::size_t>(k)];

@@ -88,7 +88,7 @@ void EkfSlam::record_seen_together(const std::vector<Index>& touched) {
 // almost always are), and each is the other's only compatible feature (no ambiguity to
 // resolve, which is what a joint test would be for).
 EkfSlam::Index EkfSlam::merge_partner(Index k) const {
-  return dcslam::merge_partner(map_, k, config_.merge_radius, merge_gate_,
+  return dcslam::merge_partner(map_, k, config_.merge_radius, merge_gate_, 0.0,
                                [this](Index a, Index b) { return !seen_together(a, b); });
 }
 

@@ -691,13 +691,13 @@ struct CheckpointAccess {
     out.count(f.events_.size());
     for (const JoinEvent& event : f.events_) save_event(out, event);
     save_aliases(out, f.merged_into_);
-    std::vector<std::int64_t> leaf_keys;
-    for (const auto& entry : f.leaves_of_) leaf_keys.push_back(entry.first);
-    std::sort(leaf_keys.begin(), leaf_keys.end());
-    out.count(leaf_keys.size());
-    for (const std::int64_t id : leaf_keys) {
+    std::vector<std::int64_t> seen_keys;
+    for (const auto& entry : f.seen_with_) seen_keys.push_back(entry.first);
+    std::sort(seen_keys.begin(), seen_keys.end());
+    out.count(seen_keys.size());
+    for (const std::int64_t id : seen_keys) {
       out.pod(id);
-      out.ids(f.leaves_of_.at(id));
+      out.ids(f.seen_with_.at(id));
     }
     out.count(f.closed_maps_counters_.size());
     for (const auto& [name, value] : f.closed_maps_counters_) {
@@ -736,10 +736,10 @@ struct CheckpointAccess {
     for (JoinEvent& event : f->events_) event = load_event(in);
     Reader::require(f->events_.size() == static_cast<std::size_t>(f->joins_created_), "join events and joins differ");
     f->merged_into_ = load_aliases(in);
-    const std::size_t leaf_sets = in.count(16);
-    for (std::size_t k = 0; k < leaf_sets; ++k) {
+    const std::size_t seen_lists = in.count(16);
+    for (std::size_t k = 0; k < seen_lists; ++k) {
       const auto id = in.pod<std::int64_t>();
-      f->leaves_of_[id] = in.ids();
+      f->seen_with_[id] = in.ids();
     }
     const std::size_t counters = in.count(16);
     for (std::size_t k = 0; k < counters; ++k) {

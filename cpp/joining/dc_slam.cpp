@@ -188,6 +188,15 @@ std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::ve
   return ids;
 }
 
+namespace {
+
+void record_seen_with(const EkfSlam& local, SeenWith& seen_with) {
+  const auto& ids = local.map().ids();
+  for (std::size_t k = 0; k < ids.size(); ++k) seen_with[ids[k]] = local.seen_with(static_cast<Eigen::Index>(k));
+}
+
+}  // namespace
+
 void DCSlam::close_local_map() {
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -204,7 +213,7 @@ void DCSlam::close_local_map() {
       add_alias(merged_into_, from, follow_aliases(local_->merged_ids(), to));
     }
     for (const char* name : kLocalCounters) closed_maps_counters_[name] += counter(local_->stats().counters, name);
-    for (std::int64_t id : local_->map().ids()) leaves_of_[id] = {closed_local_maps_};
+    record_seen_with(*local_, seen_with_);
   }
   auto node = std::make_shared<Node>();
   node->map = compact_copy(local_->map());
@@ -282,7 +291,7 @@ void DCSlam::take_restore_point() {
     point.pending_events.push_back(events_[static_cast<std::size_t>(task->index)]);
   }
   point.merged_into = merged_into_;
-  point.leaves_of = leaves_of_;
+  point.seen_with = seen_with_;
   point.closed_maps_counters = closed_maps_counters_;
   if (config_.tree_relinearisation > 0) {
     point.tree = tree_;
@@ -306,7 +315,7 @@ void DCSlam::roll_back(RestorePoint point) {
   events_.resize(static_cast<std::size_t>(point.first_join));
   for (JoinEvent& event : point.pending_events) events_[static_cast<std::size_t>(event.index)] = std::move(event);
   merged_into_ = std::move(point.merged_into);
-  leaves_of_ = std::move(point.leaves_of);
+  seen_with_ = std::move(point.seen_with);
   closed_maps_counters_ = std::move(point.closed_maps_counters);
   if (config_.tree_relinearisation > 0) {
     tree_ = std::move(point.tree);
@@ -507,37 +516,26 @@ std::unique_ptr<MapJoin> DCSlam::make_join(const NodeMap& first, const NodeMap& 
 
 namespace {
 
-// What a join did to ids: each merged one now names the feature it joined; dropped ones, -1.
-// A merged feature's leaves join those of the feature it was merged into.
-void merge_leaves(LeafSets& leaves, std::int64_t from, std::int64_t to) {
+// A merged feature was seen with what either feature was seen with.
+void merge_seen_with(SeenWith& seen_with, std::int64_t from, std::int64_t to) {
   if (from == to) return;
-  const auto source = leaves.find(from);
-  if (source == leaves.end()) return;
-  std::vector<std::int64_t>& target = leaves[to];
-  std::vector<std::int64_t> merged;
-  std::set_union(target.begin(), target.end(), source->second.begin(), source->second.end(),
-                 std::back_inserter(merged));
-  target = std::move(merged);
-  leaves.erase(from);
+  const auto source = seen_with.find(from);
+  if (source == seen_with.end()) return;
+  std::vector<std::int64_t>& target = seen_with[to];
+  target.insert(target.end(), source->second.begin(), source->second.end());
+  seen_with.erase(from);
 }
 
-void record_merges(const MapJoin& join, IdAliases& aliases, LeafSets& leaves) {
+// What a join did to ids: each merged one now names the feature it joined; dropped ones, -1.
+void record_merges(const MapJoin& join, IdAliases& aliases, SeenWith& seen_with) {
   for (const auto& [from, to] : join.merged_ids()) {
     add_alias(aliases, from, to);
-    merge_leaves(leaves, from, to);
+    merge_seen_with(seen_with, from, to);
   }
   for (std::int64_t id : join.dropped_ids()) {
     add_alias(aliases, id, -1);
-    leaves.erase(id);
+    seen_with.erase(id);
   }
-}
-
-bool disjoint(const std::vector<std::int64_t>& a, const std::vector<std::int64_t>& b) {
-  for (auto i = a.begin(), j = b.begin(); i != a.end() && j != b.end();) {
-    if (*i == *j) return false;
-    if (*i < *j) ++i; else ++j;
-  }
-  return true;
 }
 
 }  // namespace
@@ -552,7 +550,7 @@ void DCSlam::complete(JoinTask& task) {
   event.report = task.join->report();
   event.pairing = task.join->pairing_record();
   event.step_finished = steps_;
-  record_merges(*task.join, merged_into_, leaves_of_);
+  record_merges(*task.join, merged_into_, seen_with_);
   const std::shared_ptr<Node> result = task.result.lock();
   result->tentative = std::move(tentative);
   result->map = std::move(map);
@@ -635,11 +633,11 @@ std::shared_ptr<DCSlam::FrozenNode> DCSlam::freeze(const std::shared_ptr<Node>& 
   return frozen;
 }
 
-DCSlam::NodeMap DCSlam::materialize(const FrozenNode& node, IdAliases& aliases, LeafSets& leaves) const {
+DCSlam::NodeMap DCSlam::materialize(const FrozenNode& node, IdAliases& aliases, SeenWith& seen_with) const {
   if (node.map.map) return node.map;
   // Same inputs and options as the real join: the same result, computed on the side.
-  NodeMap first = materialize(*node.left, aliases, leaves);
-  NodeMap second = materialize(*node.right, aliases, leaves);
+  NodeMap first = materialize(*node.left, aliases, seen_with);
+  NodeMap second = materialize(*node.right, aliases, seen_with);
   const Node& left = *node.left->node;
   const Node& right = *node.right->node;
   const std::unique_ptr<MapJoin> join = make_join(first, second, left, right, node.index);
@@ -651,25 +649,33 @@ DCSlam::NodeMap DCSlam::materialize(const FrozenNode& node, IdAliases& aliases, 
                           std::to_string(node.step_created) + ") fails: " + error.what() +
                           "; the filter is unchanged until it runs that join (finish_joins() runs it now)");
   }
-  record_merges(*join, aliases, leaves);
+  record_merges(*join, aliases, seen_with);
   return NodeMap{std::make_shared<const GaussianMap>(join->take_result()),
                  joined_tentative(first.tentative, second.tentative, *join, left.first_leaf,
                                   right.first_leaf + right.leaves - 1)};
 }
 
-void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, LeafSets& leaves) const {
+void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& seen_with,
+                              const std::function<std::int64_t(std::int64_t)>& resolve) const {
   if (!(config_.merge_radius > 0.0) || config_.association == Association::Known) return;
-  const auto may_be_one = [&](Eigen::Index a, Eigen::Index b) {
-    const auto& ids = map.ids();
-    return disjoint(leaves[ids[static_cast<std::size_t>(a)]], leaves[ids[static_cast<std::size_t>(b)]]);
+  const auto& ids = map.ids();
+  const auto listed = [&](std::int64_t id, std::int64_t other) {
+    const std::vector<std::int64_t>& list = seen_with[id];
+    return std::any_of(list.begin(), list.end(),
+                       [&](std::int64_t seen) { return follow_aliases(aliases, resolve(seen)) == other; });
   };
-  // The pairs compared here come from disjoint local maps, as at a join: the join's model of
-  // each feature's own error (join_feature_sigma) applies to them too.
+  const auto may_be_one = [&](Eigen::Index a, Eigen::Index b) {
+    const std::int64_t id_a = ids[static_cast<std::size_t>(a)], id_b = ids[static_cast<std::size_t>(b)];
+    return !listed(id_a, id_b) && !listed(id_b, id_a);
+  };
+  // Each feature of a local map carries the error a join models (join_feature_sigma), two of
+  // one local map as much as two of different ones: the local EKF's own merge, which has no
+  // such term, may have declined a pair this test accepts.
   const auto merges = merge_duplicate_features(map, config_.merge_radius, chi2_quantile(2, config_.gate_confidence),
-                                               may_be_one, config_.join_feature_sigma);
+                                               config_.join_feature_sigma, may_be_one);
   for (const auto& [from, to] : merges) {
     add_alias(aliases, from, to);
-    merge_leaves(leaves, from, to);
+    merge_seen_with(seen_with, from, to);
   }
 }
 
@@ -679,14 +685,16 @@ void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, LeafSets& le
 Estimate DCSlam::estimate() const {
   const_cast<DCSlam*>(this)->raise_join_failure_if_any();
   std::vector<std::shared_ptr<FrozenNode>> stack;
-  LeafSets leaves;
+  SeenWith seen_with;
+  IdAliases merged;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     for (const auto& node : stack_) stack.push_back(freeze(node));
-    leaves = leaves_of_;
+    seen_with = seen_with_;
+    merged = merged_into_;
   }
   auto joined = std::make_shared<GaussianMap>(*compact_copy(local_->map()));
-  for (std::int64_t id : joined->ids()) leaves[id] = {closed_local_maps_};
+  record_seen_with(*local_, seen_with);
   // Join everything on the stack, top first, as Algorithm 2 does at the end of the run.
   // Tentative features all stay, as in the EKF's estimate: the maps after them may not have
   // had their chance to confirm them yet (and resolve() still points at them).
@@ -694,7 +702,7 @@ Estimate DCSlam::estimate() const {
   std::vector<JoinPairingRecord> fold;
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     const int index = -1 - static_cast<int>(it - stack.rbegin());
-    NodeMap first = materialize(**it, aliases, leaves);
+    NodeMap first = materialize(**it, aliases, seen_with);
     MapJoin join(first.map, std::move(joined), join_options(index, (*it)->node->robot_id));
     try {
       join.finish();  // releases its inputs: at most the inputs and the result are alive
@@ -703,21 +711,19 @@ Estimate DCSlam::estimate() const {
                             std::to_string(stack.rend() - it - 1) + " with the maps after it failed: " + error.what() +
                             "; the filter is unchanged");
     }
-    record_merges(join, aliases, leaves);
+    record_merges(join, aliases, seen_with);
     fold.push_back(join.pairing_record());
     joined = std::make_shared<GaussianMap>(join.take_result());
   }
   // The duplicates the joins left, pairs no join could decide (docs/data_association.md).
-  merge_duplicates(*joined, aliases, leaves);
+  // The open local map's own merges are not in merged_into_ yet.
+  merge_duplicates(*joined, aliases, seen_with, [&](std::int64_t id) {
+    return follow_aliases(merged, follow_aliases(local_->merged_ids(), id));
+  });
   if (config_.tree_relinearisation > 0 && !stack.empty()) {
     // The same pairs, every join redone from the local maps and re-linearised (join_tree.hpp).
     std::vector<TreeSpan> spans;
     for (const auto& frozen : stack) spans.push_back(TreeSpan{frozen->node->first_leaf, frozen->node->leaves});
-    IdAliases merged;
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      merged = merged_into_;
-    }
     const auto final_id = [&](std::int64_t id) { return follow_aliases(aliases, follow_aliases(merged, id)); };
     RelinearisationReport report;
     const LeafLog open_log = seal_leaf_log(open_log_, local_->map(), local_->merged_ids());

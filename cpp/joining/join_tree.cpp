@@ -9,6 +9,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
 
+#include "dcslam/association/feature_merging.hpp"
 #include "dcslam/core/geometry.hpp"
 
 namespace dcslam {
@@ -37,6 +38,31 @@ namespace {
 constexpr int kBoundarySteps = 10;
 // Halvings of a pass's step before the line search gives up (2^-20 of the step).
 constexpr int kLineSearchHalvings = 20;
+
+// Two features of one local map that estimate()'s duplicate merge made one landmark carry one
+// id once relabelled. The batch problem has one landmark for both; the local map's Gaussian
+// conditioned on f_a = f_b (and f_b marginalised) is that local map's part of it.
+std::shared_ptr<const GaussianMap> with_repeated_ids_merged(std::shared_ptr<const GaussianMap> map) {
+  std::unordered_map<std::int64_t, Index> first_of;
+  std::vector<std::pair<Index, Index>> repeats;
+  for (Index k = 0; k < map->num_features(); ++k) {
+    const auto [found, inserted] = first_of.emplace(map->ids()[static_cast<std::size_t>(k)], k);
+    if (!inserted) repeats.emplace_back(found->second, k);
+  }
+  if (repeats.empty()) return map;
+  auto merged = std::make_shared<GaussianMap>(*map);
+  std::vector<Index> dropped;
+  for (const auto& [kept, repeat] : repeats) {
+    if (!impose_equal_features(*merged, kept, repeat)) {
+      throw std::logic_error("JoinTree::relinearise: two features of one local map merged into " +
+                             std::to_string(map->ids()[static_cast<std::size_t>(kept)]) +
+                             " have a difference of zero covariance");
+    }
+    dropped.push_back(repeat);
+  }
+  merged->remove_features(dropped);
+  return merged;
+}
 
 // The angle equal to `angle` modulo 2π that is nearest to `reference`: JoinFrame takes the
 // difference between a prior heading and the heading it is linearised at.
@@ -487,8 +513,11 @@ GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const Gaus
     const std::vector<std::shared_ptr<const GaussianMap>> rebuilt = rebuilder.rebuild(point);
     std::vector<BuiltNode> pass_leaves;
     pass_leaves.reserve(leaves.size());
-    for (std::size_t k = 0; k < leaves.size(); ++k) pass_leaves.push_back(BuiltNode{rebuilt[k], leaves[k].tentative});
-    GaussianMap next = TreePass(*this, pass_leaves, rebuilt.back(), options, point).fold(stack);
+    for (std::size_t k = 0; k < leaves.size(); ++k) {
+      pass_leaves.push_back(BuiltNode{with_repeated_ids_merged(rebuilt[k]), leaves[k].tentative});
+    }
+    GaussianMap next =
+        TreePass(*this, pass_leaves, with_repeated_ids_merged(rebuilt.back()), options, point).fold(stack);
     // The line search: the Gauss–Newton step is taken whole where it lowers the batch
     // objective (always, near the optimum), else halved until it does. Each try refits the
     // intermediate poses, O(steps + measurements), next to the pass's O(n^2) joins.

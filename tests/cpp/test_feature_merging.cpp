@@ -93,7 +93,7 @@ TEST(FeatureMerging, MergesEveryMutuallyUniqueCompatiblePairAndNothingElse) {
     const auto ia = map.ids()[static_cast<std::size_t>(a)], ib = map.ids()[static_cast<std::size_t>(b)];
     return !((ia == 13 && ib == 14) || (ia == 14 && ib == 13));
   };
-  const auto merged = merge_duplicate_features(map, 2.0, gate, may_be_one);
+  const auto merged = merge_duplicate_features(map, 2.0, gate, 0.0, may_be_one);
   ASSERT_EQ(merged.size(), 1u);
   EXPECT_EQ(merged[0], std::make_pair(std::int64_t{12}, std::int64_t{10}));  // the older id stays
   EXPECT_EQ(map.ids(), (std::vector<std::int64_t>{10, 11, 13, 14}));
@@ -112,9 +112,9 @@ TEST(FeatureMerging, FeatureSigmaWidensTheTestAndNotTheUpdate) {
   EXPECT_NEAR(feature_difference_distance_sq(map, 0, 1), 0.16 / (2 * 0.0025), 1e-9);
   EXPECT_NEAR(feature_difference_distance_sq(map, 0, 1, 0.1), 0.16 / (2 * (0.0025 + 0.01)), 1e-9);
   GaussianMap plain = map;
-  EXPECT_TRUE(merge_duplicate_features(plain, 2.0, 9.21, anything).empty());
+  EXPECT_TRUE(merge_duplicate_features(plain, 2.0, 9.21, 0.0, anything).empty());
   GaussianMap expected = map;
-  const auto merged = merge_duplicate_features(map, 2.0, 9.21, anything, 0.1);
+  const auto merged = merge_duplicate_features(map, 2.0, 9.21, 0.1, anything);
   ASSERT_EQ(merged.size(), 1u);
   // The merge itself is the exact f_10 = f_11 of the map's own covariance, as a join imposes it.
   ASSERT_TRUE(impose_equal_features(expected, 0, 1));
@@ -126,12 +126,12 @@ TEST(FeatureMerging, FeatureSigmaWidensTheTestAndNotTheUpdate) {
 // A feature with two compatible partners is left alone: no ambiguity is resolved by merging.
 TEST(FeatureMerging, AnAmbiguousPairIsNotMerged) {
   GaussianMap map = independent_map({Vec2(0, 0), Vec2(0.05, 0), Vec2(-0.05, 0)});
-  const auto merged = merge_duplicate_features(map, 2.0, 9.21, [](Eigen::Index, Eigen::Index) { return true; });
+  const auto merged = merge_duplicate_features(map, 2.0, 9.21, 0.0, [](Eigen::Index, Eigen::Index) { return true; });
   EXPECT_TRUE(merged.empty());
   EXPECT_EQ(map.num_features(), 3);
   // The partner search itself: none (ambiguous) for the middle one, none beyond the radius.
-  EXPECT_EQ(merge_partner(map, 0, 2.0, 9.21, [](Eigen::Index, Eigen::Index) { return true; }), -1);
-  EXPECT_EQ(merge_partner(map, 0, 0.01, 9.21, [](Eigen::Index, Eigen::Index) { return true; }), -1);
+  EXPECT_EQ(merge_partner(map, 0, 2.0, 9.21, 0.0, [](Eigen::Index, Eigen::Index) { return true; }), -1);
+  EXPECT_EQ(merge_partner(map, 0, 0.01, 9.21, 0.0, [](Eigen::Index, Eigen::Index) { return true; }), -1);
 }
 
 }  // namespace

@@ -28,21 +28,21 @@ double feature_difference_distance_sq(const GaussianMap& map, Eigen::Index a, Ei
 bool impose_equal_features(GaussianMap& map, Eigen::Index a, Eigen::Index b);
 
 // Whether features a and b of a map may stand for one landmark (e.g. they were never paired in
-// one scan, or never in one local map): what the map's covariance cannot tell.
+// one scan): what the map's covariance cannot tell.
 using MayBeOneLandmark = std::function<bool(Eigen::Index, Eigen::Index)>;
 
 // The one feature j != k of `map` that k may be a duplicate of: within `radius` of it, f_k - f_j
 // compatible with 0 (D^2 <= gate) and may_be_one(k, j); -1 when there is none or more than one
 // (no ambiguity to resolve, which is what a joint test would be for). The test adds
 // `feature_sigma` as feature_difference_distance_sq() does. O(n).
-Eigen::Index merge_partner(const GaussianMap& map, Eigen::Index k, double radius, double gate,
-                           const MayBeOneLandmark& may_be_one, double feature_sigma = 0.0);
+Eigen::Index merge_partner(const GaussianMap& map, Eigen::Index k, double radius, double gate, double feature_sigma,
+                           const MayBeOneLandmark& may_be_one);
 
 // Merges every pair of features that are each other's merge_partner(), keeping the one with
 // the smaller id, in rounds until a round merges nothing (at most max_rounds). Returns
 // (merged id, kept id) for each merge. O(n^2) a round for the search, O(n^2) a merge.
 std::vector<std::pair<std::int64_t, std::int64_t>> merge_duplicate_features(
-    GaussianMap& map, double radius, double gate, const MayBeOneLandmark& may_be_one,
-    double feature_sigma = 0.0, int max_rounds = 10);
+    GaussianMap& map, double radius, double gate, double feature_sigma, const MayBeOneLandmark& may_be_one,
+    int max_rounds = 10);
 
 }  // namespace dcslam

@@ -63,6 +63,9 @@ class EkfSlam : public SlamFilter {
   const std::unordered_set<std::int64_t>& removed_ids() const { return removed_ids_; }
   // Duplicated features merged so far: merged id -> the id of the feature it was merged into.
   const IdAliases& merged_ids() const { return merged_into_; }
+  // Ids of the features within merge_radius seen in one scan with feature k (ids as they were
+  // then: merged_ids() maps those merged since). Recorded in modes "nn"/"jcbb" only.
+  const std::vector<std::int64_t>& seen_with(Index k) const { return tracks_[static_cast<std::size_t>(k)].seen_with; }
 
   // Hands the map over (D&C closing a local map) and restarts this filter as a fresh one at
   // the origin of a new base frame. Stats and the fresh-id counter carry on.

@@ -19,6 +19,7 @@
 #include <cstdint>
 #include <deque>
 #include <exception>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -36,10 +37,10 @@
 
 namespace dcslam {
 
-// Feature id -> the local maps (leaves, sorted) its measurements came from. Two features that
-// share a leaf are distinct landmarks (the local EKF kept them apart); D&C's duplicate merge
-// only considers features whose leaves are disjoint.
-using LeafSets = std::unordered_map<std::int64_t, std::vector<std::int64_t>>;
+// Feature id -> the ids of the features within merge_radius seen in one scan with it, in its
+// local map (ids as they were then; the merges since map them on). Two measurements of one
+// scan come from two landmarks: D&C's final duplicate merge never merges such a pair.
+using SeenWith = std::unordered_map<std::int64_t, std::vector<std::int64_t>>;
 
 struct JoinEvent {
   int index = 0;         // joins in creation order
@@ -151,7 +152,7 @@ class DCSlam : public SlamFilter {
     std::vector<int> queue;                    // indices of the queued joins
     std::vector<JoinEvent> pending_events;     // of the pending joins, as they were
     IdAliases merged_into;
-    LeafSets leaves_of;
+    SeenWith seen_with;
     std::map<std::string, double> closed_maps_counters;
     JoinTree tree;
     LeafLog open_log;  // of the local map before the update
@@ -194,14 +195,15 @@ class DCSlam : public SlamFilter {
   };
   std::shared_ptr<FrozenNode> freeze(const std::shared_ptr<Node>& node) const;  // mutex_ held
   // The map of a frozen node, computing pending joins on copies (never touching the real
-  // tasks); the merges those joins make are added to `aliases` and `leaves`.
-  NodeMap materialize(const FrozenNode& node, IdAliases& aliases, LeafSets& leaves) const;
+  // tasks); the merges those joins make are added to `aliases` and `seen_with`.
+  NodeMap materialize(const FrozenNode& node, IdAliases& aliases, SeenWith& seen_with) const;
   // Merges the duplicates the joins left in the estimate's `map` as the EKF merges its own
-  // (each the other's only compatible feature within merge_radius), with "from disjoint local
-  // maps" standing in for "never seen in one scan", the test with join_feature_sigma as at a
-  // join; records the merges in `aliases` and `leaves`. Off with merge_radius 0 or known
-  // association.
-  void merge_duplicates(GaussianMap& map, IdAliases& aliases, LeafSets& leaves) const;
+  // (never seen in one scan, each the other's only compatible feature within merge_radius),
+  // the test with join_feature_sigma as at a join. `resolve` maps the ids of `seen_with`'s
+  // lists to the map's before `aliases`. Records the merges in `aliases` and `seen_with`. Off
+  // with merge_radius 0 or known association.
+  void merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& seen_with,
+                        const std::function<std::int64_t(std::int64_t)>& resolve) const;
   // Follows merged_into_, then the last estimate()'s aliases while they are current.
   std::int64_t resolve_one(std::int64_t id) const;
   Vec3 node_robot(const Node& node) const;
@@ -225,7 +227,7 @@ class DCSlam : public SlamFilter {
   std::deque<std::shared_ptr<JoinTask>> queue_;
   std::vector<JoinEvent> events_;
   IdAliases merged_into_;
-  LeafSets leaves_of_;  // of the features of the closed local maps and of the joins done
+  SeenWith seen_with_;  // of the features of the closed local maps and of the joins done
   std::shared_ptr<const JoinOracle> join_oracle_;
   JoinTree tree_;  // with tree_relinearisation > 0; front end only
   // What the open local map was built from (tree_relinearisation > 0; front end only): each
