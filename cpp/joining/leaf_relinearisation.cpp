@@ -15,8 +15,8 @@ namespace {
 
 using Index = Eigen::Index;
 
-// Gauss–Newton steps of fit_leaf_poses(); they usually stop earlier, when no pose moves by more
-// than kPoseTolerance.
+// Gauss–Newton steps of fit_leaf_poses(); they usually stop earlier, when no pose is estimated
+// to be further than kPoseTolerance from the fit.
 constexpr int kPoseSteps = 10;
 constexpr double kPoseTolerance = 1e-9;
 // Step halvings when a Gauss–Newton step of the poses raises the objective.
@@ -175,6 +175,7 @@ double fit_leaf_poses(const LeafLog& log, const LeafWeights& weights, const Leaf
   std::vector<Vec3> gradient(L), delta(L);
   // Each evaluation builds the next step's equations with the objective: one sweep a step.
   double current = pose_normal_equations(log, weights, point, model, pose, diagonal, upper, gradient);
+  double previous_step = 0.0;  // the largest move of the step before (0: none, or a halved one)
   for (int step = 0; step < kPoseSteps && L > 0; ++step) {
     // Block Thomas: eliminate forwards, substitute backwards.
     for (std::size_t j = 1; j < L; ++j) {
@@ -209,7 +210,14 @@ double fit_leaf_poses(const LeafLog& log, const LeafWeights& weights, const Leaf
       current = pose_normal_equations(log, weights, point, model, pose, diagonal, upper, gradient);
       break;
     }
-    if (last || !(scale * largest > kPoseTolerance)) break;
+    // The residuals are not zero, so Gauss–Newton converges linearly: each full step is about
+    // ρ = step / previous step times the one before (ρ ~ 1e-2 on Victoria Park), and the fit
+    // lies about step ρ / (1 - ρ) further on. Stopping there rather than after a step below
+    // the tolerance saves the last sweep, ~1/7 of a fit.
+    const double taken = scale * largest;
+    const double ratio = previous_step > 0.0 && scale == 1.0 ? taken / previous_step : 1.0;
+    if (last || !(taken > kPoseTolerance) || (ratio < 0.5 && taken * ratio / (1.0 - ratio) <= kPoseTolerance)) break;
+    previous_step = scale == 1.0 ? taken : 0.0;
   }
   // A motion whose heading is known exactly (zero variance, uncorrelated) fixes the heading:
   // set from the pose before rather than fitted to the floor's precision (with a weight of
