@@ -14,7 +14,6 @@ from __future__ import annotations
 import contextlib
 import math
 import os
-from collections.abc import Sequence
 from importlib import resources
 from typing import Optional, Tuple, Union
 
@@ -22,7 +21,7 @@ import numpy as np
 
 from . import _core
 from .config import SlamConfig
-from .packed import PackedSteps
+from .packed import PackedSteps, Step, Steps
 
 __all__ = ["Step", "VictoriaPark", "Isam2d", "victoria_park", "read_isam2d"]
 
@@ -47,53 +46,11 @@ VICTORIA_PARK_DEFAULTS = dict(
 _INITIAL_HEADING_DEG = {"raw": 33.75, "recalibrated": 34.5}
 
 
-class Step:
-    """One filter step: ``u`` (3,), ``Q`` (3, 3), ``z`` (m, 2), ``R`` (m, 2, 2).
-
-    Victoria Park steps also have ``t`` (scan time, s) and ``diameters`` (m,); iSAM steps
-    have ``landmark_ids`` (m,) int64 and ``pose_id``. Arrays are read-only views.
-    """
-
-    __slots__ = ("u", "Q", "z", "R", "t", "diameters", "landmark_ids", "pose_id")
-
-    def __init__(self, u, Q, z, R, t=None, diameters=None, landmark_ids=None, pose_id=None):
-        self.u, self.Q, self.z, self.R = u, Q, z, R
-        self.t, self.diameters = t, diameters
-        self.landmark_ids, self.pose_id = landmark_ids, pose_id
-
-    def __repr__(self) -> str:
-        when = f"t={self.t:.3f}, " if self.t is not None else ""
-        return f"Step({when}u={np.array2string(self.u, precision=4)}, m={len(self.z)})"
-
-
 def _read_only(arrays: dict) -> dict:
     for value in arrays.values():
         if isinstance(value, np.ndarray):
             value.flags.writeable = False
     return arrays
-
-
-class _Steps(Sequence):
-    """The steps of a dataset, built on demand as views into its arrays."""
-
-    def __init__(self, arrays: dict, make_step, packed_steps):
-        self._offsets = arrays["offsets"]
-        self._make_step = make_step
-        self._count = len(self._offsets) - 1
-        self.packed_steps = packed_steps
-
-    def __len__(self) -> int:
-        return self._count
-
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(self._count))]
-        if index < 0:
-            index += self._count
-        if not 0 <= index < self._count:
-            raise IndexError(f"step {index} out of range (0..{self._count - 1})")
-        begin, end = int(self._offsets[index]), int(self._offsets[index + 1])
-        return self._make_step(index, slice(begin, end))
 
 
 class VictoriaPark:
@@ -124,11 +81,11 @@ class VictoriaPark:
         heading = math.radians(_INITIAL_HEADING_DEG[self.options["steering"]])
         first_fix = self.gps[0, 1:] if len(self.gps) else np.zeros(2)
         self.initial_pose_hint = np.array([first_fix[0], first_fix[1], heading])
-        self.steps = _Steps(arrays, self._step, self.packed_steps)
+        self.steps = Steps(self.offsets, self._step, self.packed_steps)
 
     def _step(self, k: int, rows: slice) -> Step:
         return Step(self.u[k], self.Q[k], self.z[rows], self.R[rows], t=float(self.t[k]),
-                    diameters=self.diameters[rows])
+                    diameters=self.diameters[rows], index=k)
 
     def packed_steps(self) -> PackedSteps:
         """The arrays behind ``steps``, as :meth:`~dcslam.SlamFilter.run_batch` takes them."""
@@ -166,11 +123,11 @@ class Isam2d:
         self.landmark_ids, self.pose_ids = arrays["landmark_ids"], arrays["pose_ids"]
         self.odometry_lines = int(arrays["odometry_lines"])
         self.landmark_lines = int(arrays["landmark_lines"])
-        self.steps = _Steps(arrays, self._step, self.packed_steps)
+        self.steps = Steps(self.offsets, self._step, self.packed_steps)
 
     def _step(self, k: int, rows: slice) -> Step:
         return Step(self.u[k], self.Q[k], self.z[rows], self.R[rows],
-                    landmark_ids=self.landmark_ids[rows], pose_id=int(self.pose_ids[k]))
+                    landmark_ids=self.landmark_ids[rows], pose_id=int(self.pose_ids[k]), index=k)
 
     def packed_steps(self) -> PackedSteps:
         """The arrays behind ``steps`` with the file's landmark ids, as
@@ -253,7 +210,7 @@ def read_isam2d(path: PathLike) -> Isam2d:
 
 
 # UTIAS MR.CLAM lives in its own module (it reads its files in Python); it builds its steps with
-# Step and _Steps above, so it is imported last.
+# _read_only above, so it is imported last.
 from .mrclam import MrClam, mrclam  # noqa: E402
 
 __all__ += ["MrClam", "mrclam"]
