@@ -29,17 +29,9 @@ PathLike = Union[str, "os.PathLike[str]"]
 
 VICTORIA_PARK_FILES = ("vp_odometry.csv.gz", "vp_scans.csv.gz", "vp_trees.csv.gz", "vp_gps.csv.gz")
 
-# Noise and filter choices for Victoria Park; the reasons are in docs/victoria_park.md.
-VICTORIA_PARK_DEFAULTS = dict(
-    steering="recalibrated",
-    max_range=30.0,
-    sigma_range=0.2,
-    sigma_bearing=0.016,
-    sigma_speed=0.6,
-    sigma_steering=0.1,
-    floor_sigma_xy=0.14,
-    floor_sigma_phi=0.002,
-)
+# Noise choices for Victoria Park, C++'s VictoriaParkOptions (dcslam_bench reads the same); the
+# reasons are in docs/victoria_park.md.
+VICTORIA_PARK_DEFAULTS = _core.datasets.victoria_park_options()
 
 # Heading that lines dead reckoning up with GPS over the first 120 s, per steering
 # (docs/victoria_park.md, "The data").
@@ -92,11 +84,10 @@ class VictoriaPark:
         return PackedSteps(self.u, self.Q, self.z, self.R, self.offsets)
 
     def slam_config(self, **overrides) -> SlamConfig:
-        """A :class:`~dcslam.SlamConfig` for this dataset: range–bearing from the laser's
-        offset, JCBB inside local maps, RJC at joins. Keyword arguments override fields."""
-        values = dict(observation="range_bearing", sensor_offset=self.sensor_offset,
-                      association="jcbb", gate_confidence=0.99, local_map_features=30,
-                      join_association="rjc", join_feature_sigma=0.1)
+        """A :class:`~dcslam.SlamConfig` for this dataset, the preset ``dcslam_bench vp`` runs
+        too (C++'s ``victoria_park_slam_config``): range–bearing from the laser's offset, JCBB
+        inside local maps, RJC at joins. Keyword arguments override fields."""
+        values = SlamConfig._from_core(_core.datasets.victoria_park_slam_config(self.sensor_offset)).to_dict()
         values.update(overrides)
         return SlamConfig(**values)
 

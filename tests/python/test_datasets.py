@@ -110,8 +110,11 @@ def test_slam_configs():
     cfg = vp.slam_config()
     assert isinstance(cfg, dcslam.SlamConfig)
     assert cfg.observation == "range_bearing" and cfg.association == "jcbb"
-    assert tuple(cfg.sensor_offset) == (3.78, 0.5, 0.0)
+    assert tuple(cfg.sensor_offset) == (3.78, 0.5, 0.0) and cfg.join_feature_sigma == 0.1
     cfg.validate()
+    # The preset is C++'s (dcslam_bench's too), read back field by field: nothing lost on the way.
+    assert dcslam.SlamConfig._from_core(cfg._to_core()) == cfg
+    assert vp.options == dcslam.datasets.VICTORIA_PARK_DEFAULTS == dcslam._core.datasets.victoria_park_options()
     g = dcslam.datasets.read_isam2d(ISAM_FILE).slam_config()
     assert g.observation == "point" and g.association == "known"
 
