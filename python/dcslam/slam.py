@@ -446,11 +446,10 @@ class DCSlam(SlamFilter):
         for name, values in (("feature_ids", features), ("landmark_ids", landmarks)):
             if values.size and not np.issubdtype(values.dtype, np.integer):
                 raise ValueError(f"set_join_oracle: {name} must be integers, got dtype {values.dtype}")
-        for name, bound in (("min_first_features", min_first_features), ("max_first_features", max_first_features)):
-            if bound is None and name == "max_first_features":
-                continue
-            if isinstance(bound, bool) or not isinstance(bound, (int, np.integer)):
-                raise ValueError(f"set_join_oracle: {name} must be an integer, got {bound!r}")
+        if not _is_integer(min_first_features):
+            raise ValueError(f"set_join_oracle: min_first_features must be an integer, got {min_first_features!r}")
+        if max_first_features is not None and not _is_integer(max_first_features):
+            raise ValueError(f"set_join_oracle: max_first_features must be an integer, got {max_first_features!r}")
         self._core.set_join_oracle(features.astype(np.int64).tolist(), landmarks.astype(np.int64).tolist(), mode,
                                    int(min_first_features), None if max_first_features is None else int(max_first_features))
 
@@ -460,6 +459,10 @@ class DCSlam(SlamFilter):
         Raises ``ValueError`` (:class:`dcslam.InvalidArgument`) when a join fails, after putting
         the filter back at its state before the update that queued it (docs/design.md §5.4)."""
         self._core.finish_joins()
+
+
+def _is_integer(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
 def _pairing_record(record: dict) -> dict:
