@@ -50,8 +50,8 @@ fi
 
 # The development build is tuned for this machine and strict about warnings; the defaults
 # (all three off) are for portable user builds. DCSLAM_LTO=OFF in the environment builds it
-# without link-time optimisation, as CI does (.ci/run): the results are the same, and the
-# code generation at the link of each of the three programs is most of the build's time.
+# without link-time optimisation, as CI does (.ci/run): the results are the same, and LTO
+# generates the library's code again at the link of each of the three programs.
 echo "setup: building dcslam (build/dev)"
 "$PY" -m pip install -q --no-build-isolation --no-deps -e . \
   -Cbuild-dir=build/dev \
