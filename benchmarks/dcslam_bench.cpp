@@ -317,8 +317,9 @@ double real_number(const Args& args, const std::string& key, double fallback) {
 
 // The options every filter run takes from the command line, whatever the data.
 void apply_run_options(const Args& args, SlamConfig& config) {
-  config.local_map_features = static_cast<int>(number(args, "local-map-features", 30));
-  config.join_iterations = static_cast<int>(number(args, "join-iterations", 10));
+  config.local_map_features =
+      static_cast<int>(number(args, "local-map-features", config.local_map_features));
+  config.join_iterations = static_cast<int>(number(args, "join-iterations", config.join_iterations));
   config.join_feature_sigma = real_number(args, "join-feature-sigma", config.join_feature_sigma);
   config.tree_relinearisation = static_cast<int>(number(args, "tree-relinearisation", config.tree_relinearisation));
   const long keep_poses = number(args, "keep-local-map-poses", 0);
@@ -347,16 +348,9 @@ SlamConfig simulation_config(const Args& args) {
   return config;
 }
 
-// Mirrors python/dcslam/datasets.py, VictoriaPark.slam_config(); the fields it leaves out
-// (tentative policy, JCBB node bound, RJC parameters) keep SlamConfig's defaults there too.
+// The preset Python's VictoriaPark.slam_config() gives too.
 SlamConfig victoria_park_config(const Args& args, const VictoriaParkData& data) {
-  SlamConfig config;
-  config.observation = ObservationModel::RangeBearing;
-  config.sensor_offset = data.laser_offset;
-  config.association = Association::Jcbb;
-  config.gate_confidence = 0.99;
-  config.join_association = JoinAssociation::Rjc;
-  config.join_feature_sigma = 0.1;
+  SlamConfig config = victoria_park_slam_config(data.laser_offset);
   apply_run_options(args, config);
   return config;
 }
@@ -618,7 +612,7 @@ int command_vp(const Args& args) {
               static_cast<long long>(data.detections_beyond_range), options.max_range);
   std::printf("  options: steering %s, sigma_range %g m, sigma_bearing %g rad, sigma_speed %g m/s, "
               "sigma_steering %g rad, floor_sigma_xy %g, floor_sigma_phi %g\n",
-              options.steering == Steering::Recalibrated ? "recalibrated" : "raw", options.sigma_range,
+              to_string(options.steering), options.sigma_range,
               options.sigma_bearing, options.odometry.sigma_speed, options.odometry.sigma_steering,
               options.odometry.floor_sigma_xy, options.odometry.floor_sigma_phi);
   std::printf("  config: range_bearing, sensor offset (%g, %g, %g), association %s, join %s, gate %g, "

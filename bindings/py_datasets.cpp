@@ -7,6 +7,7 @@
 #include "dcslam/core/errors.hpp"
 #include "dcslam/datasets/isam2d.hpp"
 #include "dcslam/datasets/victoria_park.hpp"
+#include "py_conversions.hpp"
 
 namespace py = pybind11;
 
@@ -78,6 +79,31 @@ void define_datasets(py::module_& root) {
       py::arg("sigma_bearing"), py::arg("sigma_speed"), py::arg("sigma_steering"),
       py::arg("floor_sigma_xy"), py::arg("floor_sigma_phi"),
       "Reads the four Victoria Park CSVs into flat arrays (one step per laser scan).");
+
+  m.def(
+      "victoria_park_options",
+      [] {
+        const VictoriaParkOptions options;
+        py::dict out;
+        out["steering"] = to_string(options.steering);
+        out["max_range"] = options.max_range;
+        out["sigma_range"] = options.sigma_range;
+        out["sigma_bearing"] = options.sigma_bearing;
+        out["sigma_speed"] = options.odometry.sigma_speed;
+        out["sigma_steering"] = options.odometry.sigma_steering;
+        out["floor_sigma_xy"] = options.odometry.floor_sigma_xy;
+        out["floor_sigma_phi"] = options.odometry.floor_sigma_phi;
+        return out;
+      },
+      "VictoriaParkOptions' defaults, by load_victoria_park's keyword names.");
+
+  m.def(
+      "victoria_park_slam_config",
+      [](const py::object& laser_offset) {
+        return victoria_park_slam_config(
+            as_fixed<3, 1>(laser_offset, "victoria_park_slam_config: argument 'laser_offset'"));
+      },
+      py::arg("laser_offset"), "The filter options for Victoria Park (victoria_park_slam_config in C++).");
 
   m.def(
       "read_isam2d",

@@ -28,13 +28,14 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Dict, List, NamedTuple
+from typing import Dict, List
 
 import numpy as np
 
 import dcslam
 from dcslam.consistency import chi2_threshold, nees
 from dcslam.geometry import compose, invert, observe
+from dcslam.packed import Step
 
 FILTERS = ("ekf", "dc")
 LABELS = {"ekf": "EKF SLAM", "dc": "D&C SLAM"}
@@ -43,26 +44,16 @@ COLORS = {"ekf": "tab:red", "dc": "tab:blue"}
 QUANTITIES = ("ci_heading", "ci_pose", "abs_heading_error", "heading_sigma", "ideal_heading_sigma")
 
 
-class IdealStep(NamedTuple):
-    """A simulator step with the noise removed (same fields as ``dcslam.simulation.Step``)."""
-
-    u: np.ndarray
-    Q: np.ndarray
-    z: np.ndarray
-    R: np.ndarray
-    true_ids: np.ndarray
-
-
-def noise_free_steps(sim) -> List[IdealStep]:
+def noise_free_steps(sim) -> List[Step]:
     """The true relative motions and the exact range–bearing of every measured feature."""
     steps = []
     for k, step in enumerate(sim.steps):
         pose = sim.poses[k + 1]
         u = compose(invert(sim.poses[k]), pose)
         z = np.array(
-            [observe("range_bearing", (0.0, 0.0, 0.0), pose, sim.landmarks[i]) for i in step.true_ids]
+            [observe("range_bearing", (0.0, 0.0, 0.0), pose, sim.landmarks[i]) for i in step.landmark_ids]
         ).reshape(-1, 2)
-        steps.append(IdealStep(u, step.Q, z, step.R, step.true_ids))
+        steps.append(Step(u, step.Q, z, step.R, landmark_ids=step.landmark_ids, index=k))
     return steps
 
 
@@ -101,7 +92,7 @@ def monte_carlo(runs: int, steps: int, seed: int, every: int, local_map_features
             true_pose = sim.poses[end]
             for name in FILTERS:
                 slam = noisy[name]
-                slam.run(sim.steps[begin:end], ids_field="true_ids")
+                slam.run(sim.steps[begin:end])
                 est = slam.estimate()
                 P_robot = est.covariance[:3, :3]
                 heading_error = math.remainder(est.robot[2] - true_pose[2], 2 * math.pi)
@@ -112,7 +103,7 @@ def monte_carlo(runs: int, steps: int, seed: int, every: int, local_map_features
                 result[f"{name}_abs_heading_error"][run, c] = abs(heading_error)
                 result[f"{name}_heading_sigma"][run, c] = math.sqrt(P_robot[2, 2])
                 if ideal:
-                    exact[name].run(exact_steps[begin:end], ids_field="true_ids")
+                    exact[name].run(exact_steps[begin:end])
                     ideal_variance = exact[name].estimate().covariance[2, 2]
                     result[f"{name}_ideal_heading_sigma"][run, c] = math.sqrt(ideal_variance)
             begin = end

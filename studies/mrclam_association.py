@@ -26,17 +26,9 @@ import dcslam
 from dcslam import evaluation
 
 
-def drive(slam, steps):
-    returned = []
-    for step in steps:
-        slam.predict(step.u, step.Q)
-        returned.append(np.asarray(slam.update(step.z, step.R)))
-    return returned
-
-
 def scores(slam, returned, true_ids, data):
     estimate = slam.estimate()
-    association = evaluation.association_scores(true_ids, slam.resolve(np.concatenate(returned)))
+    association = evaluation.association_scores(true_ids, slam.resolve(returned))
     return association, float(np.linalg.norm(estimate.robot[:2] - data.poses_true[-1][:2]))
 
 
@@ -52,8 +44,7 @@ def main() -> None:
           f"{'wrong':>5s} {'robot err':>9s}")
     for robot in args.robots:
         data = dcslam.datasets.mrclam(robot, data_dir=None if robot == 1 and args.data_dir is None else args.data_dir)
-        steps = data.steps
-        true_ids = np.concatenate([np.asarray(step.landmark_ids) for step in steps])
+        true_ids = data.true_ids
         ekf_done = set()
         for setting in args.settings:
             gate, sigma = (float(value) for value in setting.split(":"))
@@ -66,16 +57,16 @@ def main() -> None:
             dc = dcslam.DCSlam(config)
             rows.append(("D&C", dc, None))
             for name, slam, _ in rows:
-                returned = drive(slam, steps)
+                returned = slam.run(data).ids
                 association, error = scores(slam, returned, true_ids, data)
                 print(f"{robot:5d} {gate:6.3f} {sigma:10.2f} {name:6s} {association.pairwise_precision:6.3f} "
                       f"{association.pairwise_recall:6.3f} {association.features_per_landmark:7.2f} "
                       f"{association.wrong_merges:5d} {error:8.2f} m", flush=True)
                 if name == "D&C" and args.oracle:
-                    features, landmarks = evaluation.feature_landmarks(true_ids, np.concatenate(returned))
+                    features, landmarks = evaluation.feature_landmarks(true_ids, returned)
                     oracle = dcslam.DCSlam(config)
                     oracle.set_join_oracle(features, landmarks, "among_candidates")
-                    association, error = scores(oracle, drive(oracle, steps), true_ids, data)
+                    association, error = scores(oracle, oracle.run(data).ids, true_ids, data)
                     print(f"{robot:5d} {gate:6.3f} {sigma:10.2f} {'oracle':6s} {association.pairwise_precision:6.3f} "
                           f"{association.pairwise_recall:6.3f} {association.features_per_landmark:7.2f} "
                           f"{association.wrong_merges:5d} {error:8.2f} m", flush=True)

@@ -52,6 +52,10 @@ Steering parse_steering(const std::string& name, const char* field) {
                         "' (expected 'raw' or 'recalibrated')");
 }
 
+const char* to_string(Steering steering) {
+  return steering == Steering::Recalibrated ? "recalibrated" : "raw";
+}
+
 double recalibrated_steering(double raw_steering) { return 1.059 * raw_steering + 0.0026; }
 
 void integrate_odometry(const AckermannVehicle& vehicle, const OdometryNoise& noise,
@@ -239,6 +243,18 @@ VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
     data.gps.row(static_cast<Eigen::Index>(i)) << gps.column(0)[i], gps.column(1)[i],
         gps.column(2)[i];
   return data;
+}
+
+SlamConfig victoria_park_slam_config(const Vec3& laser_offset) {
+  SlamConfig config;
+  config.observation = ObservationModel::RangeBearing;
+  config.sensor_offset = laser_offset;
+  config.association = Association::Jcbb;
+  config.gate_confidence = 0.99;
+  config.local_map_features = 30;
+  config.join_association = JoinAssociation::Rjc;
+  config.join_feature_sigma = 0.1;
+  return config;
 }
 
 }  // namespace dcslam

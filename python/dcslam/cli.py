@@ -170,9 +170,8 @@ def _run_identity(name: str, steps, cfg, filters: List[str], max_steps: Optional
     for step in steps:
         for values in (step.u, step.Q, step.z, step.R):
             digest.update(np.ascontiguousarray(values, dtype=float).tobytes())
-        ids = getattr(step, "landmark_ids", None)
-        if ids is not None:
-            digest.update(np.ascontiguousarray(ids, dtype=np.int64).tobytes())
+        if step.landmark_ids is not None:
+            digest.update(np.ascontiguousarray(step.landmark_ids, dtype=np.int64).tobytes())
     # In this order the first difference named is the most telling one (the digest last).
     return {"dataset": name, "filters": filters, "max_steps": max_steps, "checkpoint_every": checkpoint_every,
             **cfg.to_dict(), "data digest": digest.hexdigest()}

@@ -146,6 +146,13 @@ class SlamConfig:
         return dataclasses.asdict(self)
 
     @classmethod
+    def _from_core(cls, core: "_core.SlamConfig") -> "SlamConfig":
+        """The options of a compiled ``_core.SlamConfig`` (a C++ preset), as the dataclass."""
+        values = {f.name: getattr(core, f.name) for f in dataclasses.fields(cls)}
+        values["sensor_offset"] = tuple(float(v) for v in values["sensor_offset"])
+        return cls(**values)
+
+    @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> "SlamConfig":
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(values) - known)

@@ -14,7 +14,6 @@ from __future__ import annotations
 import contextlib
 import math
 import os
-from collections.abc import Sequence
 from importlib import resources
 from typing import Optional, Tuple, Union
 
@@ -22,7 +21,7 @@ import numpy as np
 
 from . import _core
 from .config import SlamConfig
-from .packed import PackedSteps
+from .packed import PackedSteps, Step, Steps
 
 __all__ = ["Step", "VictoriaPark", "Isam2d", "victoria_park", "read_isam2d"]
 
@@ -30,40 +29,13 @@ PathLike = Union[str, "os.PathLike[str]"]
 
 VICTORIA_PARK_FILES = ("vp_odometry.csv.gz", "vp_scans.csv.gz", "vp_trees.csv.gz", "vp_gps.csv.gz")
 
-# Noise and filter choices for Victoria Park; the reasons are in docs/victoria_park.md.
-VICTORIA_PARK_DEFAULTS = dict(
-    steering="recalibrated",
-    max_range=30.0,
-    sigma_range=0.2,
-    sigma_bearing=0.016,
-    sigma_speed=0.6,
-    sigma_steering=0.1,
-    floor_sigma_xy=0.14,
-    floor_sigma_phi=0.002,
-)
+# Noise choices for Victoria Park, C++'s VictoriaParkOptions (dcslam_bench reads the same); the
+# reasons are in docs/victoria_park.md.
+VICTORIA_PARK_DEFAULTS = _core.datasets.victoria_park_options()
 
 # Heading that lines dead reckoning up with GPS over the first 120 s, per steering
 # (docs/victoria_park.md, "The data").
 _INITIAL_HEADING_DEG = {"raw": 33.75, "recalibrated": 34.5}
-
-
-class Step:
-    """One filter step: ``u`` (3,), ``Q`` (3, 3), ``z`` (m, 2), ``R`` (m, 2, 2).
-
-    Victoria Park steps also have ``t`` (scan time, s) and ``diameters`` (m,); iSAM steps
-    have ``landmark_ids`` (m,) int64 and ``pose_id``. Arrays are read-only views.
-    """
-
-    __slots__ = ("u", "Q", "z", "R", "t", "diameters", "landmark_ids", "pose_id")
-
-    def __init__(self, u, Q, z, R, t=None, diameters=None, landmark_ids=None, pose_id=None):
-        self.u, self.Q, self.z, self.R = u, Q, z, R
-        self.t, self.diameters = t, diameters
-        self.landmark_ids, self.pose_id = landmark_ids, pose_id
-
-    def __repr__(self) -> str:
-        when = f"t={self.t:.3f}, " if self.t is not None else ""
-        return f"Step({when}u={np.array2string(self.u, precision=4)}, m={len(self.z)})"
 
 
 def _read_only(arrays: dict) -> dict:
@@ -71,29 +43,6 @@ def _read_only(arrays: dict) -> dict:
         if isinstance(value, np.ndarray):
             value.flags.writeable = False
     return arrays
-
-
-class _Steps(Sequence):
-    """The steps of a dataset, built on demand as views into its arrays."""
-
-    def __init__(self, arrays: dict, make_step, packed_steps):
-        self._offsets = arrays["offsets"]
-        self._make_step = make_step
-        self._count = len(self._offsets) - 1
-        self.packed_steps = packed_steps
-
-    def __len__(self) -> int:
-        return self._count
-
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(self._count))]
-        if index < 0:
-            index += self._count
-        if not 0 <= index < self._count:
-            raise IndexError(f"step {index} out of range (0..{self._count - 1})")
-        begin, end = int(self._offsets[index]), int(self._offsets[index + 1])
-        return self._make_step(index, slice(begin, end))
 
 
 class VictoriaPark:
@@ -124,22 +73,21 @@ class VictoriaPark:
         heading = math.radians(_INITIAL_HEADING_DEG[self.options["steering"]])
         first_fix = self.gps[0, 1:] if len(self.gps) else np.zeros(2)
         self.initial_pose_hint = np.array([first_fix[0], first_fix[1], heading])
-        self.steps = _Steps(arrays, self._step, self.packed_steps)
+        self.steps = Steps(self.offsets, self._step, self.packed_steps)
 
     def _step(self, k: int, rows: slice) -> Step:
         return Step(self.u[k], self.Q[k], self.z[rows], self.R[rows], t=float(self.t[k]),
-                    diameters=self.diameters[rows])
+                    diameters=self.diameters[rows], index=k)
 
     def packed_steps(self) -> PackedSteps:
         """The arrays behind ``steps``, as :meth:`~dcslam.SlamFilter.run_batch` takes them."""
         return PackedSteps(self.u, self.Q, self.z, self.R, self.offsets)
 
     def slam_config(self, **overrides) -> SlamConfig:
-        """A :class:`~dcslam.SlamConfig` for this dataset: range–bearing from the laser's
-        offset, JCBB inside local maps, RJC at joins. Keyword arguments override fields."""
-        values = dict(observation="range_bearing", sensor_offset=self.sensor_offset,
-                      association="jcbb", gate_confidence=0.99, local_map_features=30,
-                      join_association="rjc", join_feature_sigma=0.1)
+        """A :class:`~dcslam.SlamConfig` for this dataset, the preset ``dcslam_bench vp`` runs
+        too (C++'s ``victoria_park_slam_config``): range–bearing from the laser's offset, JCBB
+        inside local maps, RJC at joins. Keyword arguments override fields."""
+        values = SlamConfig._from_core(_core.datasets.victoria_park_slam_config(self.sensor_offset)).to_dict()
         values.update(overrides)
         return SlamConfig(**values)
 
@@ -166,11 +114,11 @@ class Isam2d:
         self.landmark_ids, self.pose_ids = arrays["landmark_ids"], arrays["pose_ids"]
         self.odometry_lines = int(arrays["odometry_lines"])
         self.landmark_lines = int(arrays["landmark_lines"])
-        self.steps = _Steps(arrays, self._step, self.packed_steps)
+        self.steps = Steps(self.offsets, self._step, self.packed_steps)
 
     def _step(self, k: int, rows: slice) -> Step:
         return Step(self.u[k], self.Q[k], self.z[rows], self.R[rows],
-                    landmark_ids=self.landmark_ids[rows], pose_id=int(self.pose_ids[k]))
+                    landmark_ids=self.landmark_ids[rows], pose_id=int(self.pose_ids[k]), index=k)
 
     def packed_steps(self) -> PackedSteps:
         """The arrays behind ``steps`` with the file's landmark ids, as
@@ -253,7 +201,7 @@ def read_isam2d(path: PathLike) -> Isam2d:
 
 
 # UTIAS MR.CLAM lives in its own module (it reads its files in Python); it builds its steps with
-# Step and _Steps above, so it is imported last.
+# _read_only above, so it is imported last.
 from .mrclam import MrClam, mrclam  # noqa: E402
 
 __all__ += ["MrClam", "mrclam"]

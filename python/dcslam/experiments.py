@@ -145,7 +145,7 @@ def plan(scenarios: Sequence[str], filters: Sequence[str], runs: int, seed: int 
 
 
 def _scenario_data(spec: RunSpec):
-    """(steps, config, ids_field, poses_true, landmarks_true, landmark_ids_true) of a spec."""
+    """(steps, config, poses_true, landmarks_true, landmark_ids_true) of a spec."""
     from .config import SlamConfig
 
     if spec.scenario in SIMULATED_SCENARIOS:
@@ -155,11 +155,11 @@ def _scenario_data(spec: RunSpec):
         cfg = SlamConfig(association="known", join_association="known",
                          local_map_features=spec.local_map_features or SlamConfig().local_map_features,
                          seed=spec.seed)
-        return sim.steps, cfg, "true_ids", sim.poses, sim.landmarks, np.arange(len(sim.landmarks))
+        return sim.steps, cfg, sim.poses, sim.landmarks, np.arange(len(sim.landmarks))
     data = _mrclam(spec.robot, spec.data_dir).perturbed(spec.seed, spec.extra_noise)
     cfg = data.slam_config(seed=spec.seed, **({} if spec.local_map_features is None else
                                               {"local_map_features": spec.local_map_features}))
-    return data.steps, cfg, "landmark_ids", data.poses_true, data.landmarks_true, data.landmark_ids_true
+    return data.steps, cfg, data.poses_true, data.landmarks_true, data.landmark_ids_true
 
 
 @functools.lru_cache(maxsize=4)
@@ -188,10 +188,9 @@ def _run(spec: RunSpec) -> RunResult:
     from .pipeline import SlamPipeline
 
     started = time.perf_counter()
-    steps, cfg, ids_field, poses_true, landmarks_true, landmark_ids_true = _scenario_data(spec)
+    steps, cfg, poses_true, landmarks_true, landmark_ids_true = _scenario_data(spec)
     max_steps = spec.steps if spec.scenario == "mrclam" else None
-    result = SlamPipeline(steps, cfg, filter=spec.filter, max_steps=max_steps, ids_field=ids_field,
-                          checkpoint_every=spec.every).run()
+    result = SlamPipeline(steps, cfg, filter=spec.filter, max_steps=max_steps, checkpoint_every=spec.every).run()
     scores = score_run(result, poses_true, landmarks_true, landmark_ids_true)
     checkpoints = result.checkpoints
     # checkpoint_every=spec.every (>= 1) records at least the last step

@@ -31,8 +31,8 @@ import numpy as np
 
 from . import _core
 from .config import SlamConfig
-from .datasets import Step, _read_only, _Steps
-from .packed import PackedSteps
+from .datasets import _read_only
+from .packed import PackedSteps, Step, Steps
 
 __all__ = ["MrClam", "mrclam", "MRCLAM_DEFAULTS", "LOCAL_MAP_FEATURES", "ROBOT_COUNT", "BUNDLED_ROBOTS", "robot_files",
            "read_table", "read_robot", "clean_heading_glitches", "integrate_odometry"]
@@ -428,7 +428,7 @@ class MrClam:
 
     Attributes:
         robot: the robot number (1-5).
-        steps: sequence of :class:`~dcslam.datasets.Step` (t, u, Q, z, R, landmark_ids), one
+        steps: sequence of :class:`~dcslam.packed.Step` (t, u, Q, z, R, landmark_ids), one
             per time the robot saw at least one landmark.
         t, u, Q, z, R, offsets, landmark_ids: the flat arrays behind ``steps``
             (``landmark_ids`` are landmark subject numbers, 6-20).
@@ -456,11 +456,11 @@ class MrClam:
         self.origin = arrays["origin"]
         self.heading_glitches = int(arrays["heading_glitches"])
         self.robot_sightings = int(arrays["robot_sightings"])
-        self.steps = _Steps(arrays, self._step, self.packed_steps)
+        self.steps = Steps(self.offsets, self._step, self.packed_steps)
 
     def _step(self, k: int, rows: slice) -> Step:
         return Step(self.u[k], self.Q[k], self.z[rows], self.R[rows], t=float(self.t[k]),
-                    landmark_ids=self.landmark_ids[rows])
+                    landmark_ids=self.landmark_ids[rows], index=k)
 
     def packed_steps(self) -> PackedSteps:
         """The arrays behind ``steps`` with the landmark ids, as

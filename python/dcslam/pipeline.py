@@ -175,8 +175,6 @@ class SlamPipeline:
         cfg: the filter's options (e.g. ``dataset.slam_config()``).
         filter: ``"dc"`` (:class:`~dcslam.DCSlam`) or ``"ekf"`` (:class:`~dcslam.EkfSlam`).
         max_steps: run only the first ``max_steps`` steps (None: all).
-        ids_field: step attribute holding landmark ids, used in ``"known"`` association
-            (``"landmark_ids"`` for iSAM files, ``"true_ids"`` for the simulator).
         progress: show a progress bar on the terminal.
         description: label of the progress bar.
         checkpoint_every: take the full estimate every this many steps (and after the last)
@@ -197,7 +195,6 @@ class SlamPipeline:
         cfg: SlamConfig,
         filter: str = "dc",
         max_steps: Optional[int] = None,
-        ids_field: str = "landmark_ids",
         progress: bool = False,
         description: Optional[str] = None,
         checkpoint_every: Optional[int] = None,
@@ -214,7 +211,6 @@ class SlamPipeline:
         self.step_count = len(dataset_steps) if max_steps is None else min(max_steps, len(dataset_steps))
         self.config = cfg
         self.filter_name = filter
-        self.ids_field = ids_field
         self.progress = progress
         self.description = description or f"{filter} SLAM"
         if resume is not None:
@@ -281,8 +277,7 @@ class SlamPipeline:
             for k in range(first, last):
                 step = self.dataset_steps[k]
                 slam.predict(step.u, step.Q)
-                ids = getattr(step, self.ids_field) if use_ids else None
-                returned_ids.append(slam.update(step.z, step.R, ids))
+                returned_ids.append(slam.update(step.z, step.R, step.landmark_ids if use_ids else None))
                 trajectory[k] = slam.pose()
                 when = getattr(step, "t", None)
                 timestamps[k] = k if when is None else when

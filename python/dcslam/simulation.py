@@ -12,7 +12,7 @@ inward square spiral). Ground truth for poses, features and every measurement's 
     sim = dcslam.simulate("snail", steps=500, seed=0)
     for s in sim.steps:          # step i goes from sim.poses[i] to sim.poses[i + 1]
         slam.predict(s.u, s.Q)   # u: the noisy relative motion, Q its covariance
-        slam.update(s.z, s.R)    # taken at sim.poses[i + 1]; s.true_ids: ground truth
+        slam.update(s.z, s.R)    # taken at sim.poses[i + 1]; s.landmark_ids: ground truth
 
 Noise model: the true poses follow the commanded motions exactly; ``u = u_true + n`` with
 ``n ~ N(0, Q)``, ``Q = diag(odometry_sigma**2)``. Measurements are
@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Iterator, Literal, Optional, Tuple, Union, get_args, overload
+from typing import Any, Literal, Optional, Tuple, get_args
 
 import numpy as np
 
 from . import _core
 from .config import Observation, to_core_struct
-from .packed import PackedSteps
+from .packed import PackedSteps, Step, Steps
 
 __all__ = ["SimulationConfig", "Simulation", "Step", "Steps", "simulate", "REVISIT_SCENARIOS", "revisit_scenario"]
 
@@ -114,66 +114,6 @@ class SimulationConfig:
         return dataclasses.asdict(self)
 
 
-class Step:
-    """One step: predict with ``u`` (3,) and ``Q`` (3, 3), then update with ``z`` (m, 2),
-    ``R`` (m, 2, 2); ``true_ids`` (m,) int64 are the features measured (-1: clutter).
-    All are read-only views into the simulation's arrays."""
-
-    __slots__ = ("index", "u", "Q", "z", "R", "true_ids")
-
-    def __init__(self, index: int, u, Q, z, R, true_ids):
-        self.index = index
-        self.u = u
-        self.Q = Q
-        self.z = z
-        self.R = R
-        self.true_ids = true_ids
-
-    def __repr__(self) -> str:
-        return f"Step({self.index}, {len(self.z)} measurements)"
-
-
-class Steps:
-    """The steps of a simulation as a sequence: ``len``, indexing (negative too), slicing
-    and iteration, each step built on demand as views."""
-
-    def __init__(self, sim: "Simulation"):
-        self._sim = sim
-        self.packed_steps = sim.packed_steps
-
-    def __len__(self) -> int:
-        return len(self._sim.odometry)
-
-    @overload
-    def __getitem__(self, index: int) -> Step: ...
-
-    @overload
-    def __getitem__(self, index: slice) -> list: ...
-
-    def __getitem__(self, index: Union[int, slice]):
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(len(self)))]
-        count = len(self)
-        i = int(index)
-        if i < 0:
-            i += count
-        if not 0 <= i < count:
-            raise IndexError(f"step index {index} out of range for {count} steps")
-        sim = self._sim
-        first, last = sim.step_offsets[i], sim.step_offsets[i + 1]
-        return Step(
-            i,
-            sim.odometry[i],
-            sim.Q,
-            sim.measurements[first:last],
-            sim.measurement_covariances[first:last],
-            sim.true_ids[first:last],
-        )
-
-    def __iter__(self) -> Iterator[Step]:
-        return (self[i] for i in range(len(self)))
-
-
 class Simulation:
     """A simulated run (see :func:`simulate`).
 
@@ -181,7 +121,8 @@ class Simulation:
         config: the :class:`SimulationConfig` that produced it.
         landmarks: (N, 2) true feature positions; ``true_ids`` index its rows.
         poses: (steps + 1, 3) true robot poses, ``poses[0] = (0, 0, 0)``.
-        steps: :class:`Steps`, one :class:`Step` per motion.
+        steps: :class:`~dcslam.packed.Steps`, one :class:`~dcslam.packed.Step` per motion,
+            its ``landmark_ids`` the features measured (-1: clutter).
         odometry: (steps, 3) all ``u``; ``Q``: (3, 3) their covariance.
         measurements, measurement_covariances, true_ids: every step's ``z``, ``R`` and
             ids concatenated; step i owns rows ``step_offsets[i]:step_offsets[i + 1]``.
@@ -198,7 +139,11 @@ class Simulation:
         self.measurement_covariances: np.ndarray = arrays["measurement_covariances"]
         self.true_ids: np.ndarray = arrays["true_ids"]
         self.step_offsets: np.ndarray = arrays["step_offsets"]
-        self.steps = Steps(self)
+        self.steps = Steps(self.step_offsets, self._step, self.packed_steps)
+
+    def _step(self, k: int, rows: slice) -> Step:
+        return Step(self.odometry[k], self.Q, self.measurements[rows], self.measurement_covariances[rows],
+                    landmark_ids=self.true_ids[rows], index=k)
 
     def packed_steps(self) -> PackedSteps:
         """The arrays behind ``steps`` (one ``Q`` for all), with ``true_ids`` as the landmark

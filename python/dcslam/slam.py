@@ -282,26 +282,26 @@ class SlamFilter:
         return BatchResult(ids=ids, offsets=np.asarray(offsets, dtype=np.int64), trajectory=trajectory,
                            step_seconds=step_seconds)
 
-    def run(self, source: Any, ids_field: Optional[str] = "landmark_ids") -> BatchResult:
+    def run(self, source: Any) -> BatchResult:
         """Runs every step of ``source`` with :meth:`run_batch`.
 
         ``source`` is a dataset (:class:`~dcslam.datasets.VictoriaPark`,
-        :class:`~dcslam.datasets.Isam2d`), a :class:`~dcslam.Simulation`, their ``steps``, or
-        a :class:`~dcslam.packed.PackedSteps`: their arrays are used in place, with their
-        landmark ids (a simulation's ``true_ids``) in ``"known"`` association mode. Any other
-        iterable of step objects (``s.u, s.Q, s.z, s.R``, and ``getattr(s, ids_field)`` in
-        ``"known"`` mode) is packed first, each value converted as :meth:`predict` and
-        :meth:`update` convert theirs (a bad one raises ``ValueError`` naming the step).
-        ``ids_field=None`` passes no ids.
+        :class:`~dcslam.datasets.Isam2d`, :class:`~dcslam.datasets.MrClam`), a
+        :class:`~dcslam.Simulation`, their ``steps``, or a :class:`~dcslam.packed.PackedSteps`:
+        their arrays are used in place, with their landmark ids in ``"known"`` association
+        mode. Any other iterable of step objects (``s.u, s.Q, s.z, s.R``, and
+        ``s.landmark_ids`` in ``"known"`` mode, as a :class:`~dcslam.packed.Step` has them) is
+        packed first, each value converted as :meth:`predict` and :meth:`update` convert
+        theirs (a bad one raises ``ValueError`` naming the step).
         """
-        use_ids = self._config.association == "known" and ids_field is not None
+        use_ids = self._config.association == "known"
         if not isinstance(source, PackedSteps) and hasattr(source, "packed_steps"):
             source = source.packed_steps()
         if isinstance(source, PackedSteps):
             return self.run_batch(source.u, source.Q, source.z, source.R, source.offsets,
                                   source.landmark_ids if use_ids else None)
-        packed = _core.pack_steps(
-            ((s.u, s.Q, s.z, s.R, getattr(s, ids_field) if use_ids else None) for s in source), use_ids)
+        packed = _core.pack_steps(((s.u, s.Q, s.z, s.R, s.landmark_ids if use_ids else None) for s in source),
+                                  use_ids)
         return self.run_batch(*packed)
 
 
@@ -446,11 +446,10 @@ class DCSlam(SlamFilter):
         for name, values in (("feature_ids", features), ("landmark_ids", landmarks)):
             if values.size and not np.issubdtype(values.dtype, np.integer):
                 raise ValueError(f"set_join_oracle: {name} must be integers, got dtype {values.dtype}")
-        for name, bound in (("min_first_features", min_first_features), ("max_first_features", max_first_features)):
-            if bound is None and name == "max_first_features":
-                continue
-            if isinstance(bound, bool) or not isinstance(bound, (int, np.integer)):
-                raise ValueError(f"set_join_oracle: {name} must be an integer, got {bound!r}")
+        if not _is_integer(min_first_features):
+            raise ValueError(f"set_join_oracle: min_first_features must be an integer, got {min_first_features!r}")
+        if max_first_features is not None and not _is_integer(max_first_features):
+            raise ValueError(f"set_join_oracle: max_first_features must be an integer, got {max_first_features!r}")
         self._core.set_join_oracle(features.astype(np.int64).tolist(), landmarks.astype(np.int64).tolist(), mode,
                                    int(min_first_features), None if max_first_features is None else int(max_first_features))
 
@@ -460,6 +459,10 @@ class DCSlam(SlamFilter):
         Raises ``ValueError`` (:class:`dcslam.InvalidArgument`) when a join fails, after putting
         the filter back at its state before the update that queued it (docs/design.md §5.4)."""
         self._core.finish_joins()
+
+
+def _is_integer(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
 def _pairing_record(record: dict) -> dict:

@@ -21,12 +21,12 @@ def make_filter(name, config):
     return dcslam.EkfSlam(config) if name == "ekf" else dcslam.DCSlam(config)
 
 
-def step_loop(slam, steps, ids_field=None):
+def step_loop(slam, steps, known=False):
     """The oracle: the README's loop of step calls."""
     ids, poses = [], [slam.pose().copy()]
     for s in steps:
         slam.predict(s.u, s.Q)
-        ids.append(slam.update(s.z, s.R, None if ids_field is None else getattr(s, ids_field)))
+        ids.append(slam.update(s.z, s.R, s.landmark_ids if known else None))
         poses.append(slam.pose().copy())
     return np.concatenate(ids), np.array(poses)
 
@@ -74,7 +74,7 @@ def test_known_ids_and_a_dataset_run_in_two_batches(name):
     config = isam.slam_config(local_map_features=20)
     steps = isam.steps[:400]
     looped = make_filter(name, config)
-    loop_ids, loop_poses = step_loop(looped, steps, ids_field="landmark_ids")
+    loop_ids, loop_poses = step_loop(looped, steps, known=True)
     batched = make_filter(name, config)
     # Two batches on slices of the packed arrays; the second's offsets start from 0 again.
     ends = isam.offsets[[0, 150, 400]]

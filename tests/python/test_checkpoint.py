@@ -13,8 +13,8 @@ import pytest
 
 import dcslam
 
-STEPS, SPLIT = 3000, 1500
-# 3,000 steps round a 60 m square with 5 % clutter, no ids: a map of a few hundred features
+STEPS, SPLIT = 1200, 600
+# 1,200 steps round a 60 m square with 5 % clutter, no ids: a map of about 200 features
 # that the EKF also runs in a second; every place is revisited (joins match features).
 SCENE = dict(trajectory="loop", steps=STEPS, seed=4, side_steps=15, clutter=0.05, features_per_step=10)
 CASES = {

@@ -38,7 +38,7 @@ def mean_heading_ci():
         for name, slam in (("ekf", dcslam.EkfSlam(cfg)), ("dc", dcslam.DCSlam(cfg))):
             done = 0
             for step in EARLY + LATE:
-                slam.run(sim.steps[done:step], ids_field="true_ids")
+                slam.run(sim.steps[done:step])
                 done = step
                 per_run[name][step].append(heading_ci(slam, sim, step))
     return {name: {k: float(np.mean(v)) for k, v in cis.items()} for name, cis in per_run.items()}

@@ -110,10 +110,24 @@ def test_slam_configs():
     cfg = vp.slam_config()
     assert isinstance(cfg, dcslam.SlamConfig)
     assert cfg.observation == "range_bearing" and cfg.association == "jcbb"
-    assert tuple(cfg.sensor_offset) == (3.78, 0.5, 0.0)
+    assert tuple(cfg.sensor_offset) == (3.78, 0.5, 0.0) and cfg.join_feature_sigma == 0.1
     cfg.validate()
+    # The preset is C++'s (dcslam_bench's too), read back field by field: nothing lost on the way.
+    assert dcslam.SlamConfig._from_core(cfg._to_core()) == cfg
+    assert vp.options == dcslam.datasets.VICTORIA_PARK_DEFAULTS == dcslam._core.datasets.victoria_park_options()
     g = dcslam.datasets.read_isam2d(ISAM_FILE).slam_config()
     assert g.observation == "point" and g.association == "known"
+
+
+def test_every_source_gives_the_one_step_type(raw_vp, isam):
+    sim = dcslam.simulate("loop", steps=12)
+    robot = dcslam.datasets.mrclam()
+    for steps in (raw_vp.steps, isam.steps, robot.steps, sim.steps):
+        assert type(steps) is dcslam.packed.Steps and type(steps[-1]) is dcslam.datasets.Step
+        assert steps[-1].index == len(steps) - 1 and [s.index for s in steps[2:4]] == [2, 3]
+    assert raw_vp.steps[5].landmark_ids is None and raw_vp.steps[5].t == raw_vp.t[5]
+    np.testing.assert_array_equal(np.concatenate([s.landmark_ids for s in sim.steps]), sim.true_ids)
+    np.testing.assert_array_equal(robot.steps[7].landmark_ids, robot.landmark_ids[robot.offsets[7]:robot.offsets[8]])
 
 
 def test_isam_file(isam):

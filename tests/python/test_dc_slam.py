@@ -34,7 +34,7 @@ def snapshot(slam):
 def test_bad_input_names_the_argument_and_changes_nothing(call, needle):
     sim, cfg = known_run(60)
     slam = dcslam.DCSlam(cfg)
-    slam.run(sim.steps, ids_field="true_ids")
+    slam.run(sim.steps)
     before = snapshot(slam)
     with pytest.raises(ValueError, match=needle):
         call(slam)
@@ -61,7 +61,7 @@ def test_join_events_report_the_linearisation_points_used(join_iterations):
     sim, cfg = known_run(120)
     cfg.join_iterations = join_iterations
     slam = dcslam.DCSlam(cfg)
-    slam.run(sim.steps, ids_field="true_ids")
+    slam.run(sim.steps)
     slam.finish_joins()
     joins = slam.stats.joins
     assert joins and any(j["pairings"] > 0 for j in joins)

@@ -48,7 +48,7 @@ def test_merging_removes_duplicates_without_wrong_merges(filter_cls):
 def test_known_mode_never_merges():
     sim = dcslam.simulate("loop", steps=80, seed=2)
     slam = dcslam.EkfSlam(dcslam.SlamConfig(association="known"))
-    slam.run(sim.steps, ids_field="true_ids")
+    slam.run(sim.steps)
     assert slam.stats.counters.get("features_merged", 0) == 0
 
 
@@ -71,7 +71,7 @@ def test_known_ids_with_rjc_joins_resolve_without_a_cycle():
     # follow that cycle forever; every id must now end at a feature of the map or at -1.
     sim = dcslam.revisit_scenario("small_loop_laps", 0)
     slam = dcslam.DCSlam(dcslam.SlamConfig(association="known", join_association="rjc"))
-    returned = slam.run(sim.steps, ids_field="true_ids")
+    returned = slam.run(sim.steps)
     estimate = slam.estimate()
     resolved = slam.resolve(np.concatenate(returned))
     live = set(estimate.landmark_ids.tolist()) | {-1}

@@ -55,7 +55,7 @@ def test_scores_equal_brute_force_on_random_clusterings(seed):
 def known_run():
     sim = dcslam.simulate("loop", steps=120, seed=3, clutter=0.1)
     slam = dcslam.EkfSlam(dcslam.SlamConfig(association="known"))
-    returned = slam.run(sim.steps, ids_field="true_ids")
+    returned = slam.run(sim.steps)
     return sim, slam, slam.estimate(), returned
 
 

@@ -120,7 +120,7 @@ def test_map_scores_with_nothing_to_score_are_nan():
 def test_score_run_on_a_simulation_uses_the_filter_s_own_numbers():
     sim = dcslam.simulate("loop", steps=60, seed=2)
     cfg = dcslam.SlamConfig(association="known", join_association="known", local_map_features=10)
-    result = dcslam.SlamPipeline(sim.steps, cfg, filter="dc", ids_field="true_ids", checkpoint_every=20).run()
+    result = dcslam.SlamPipeline(sim.steps, cfg, filter="dc", checkpoint_every=20).run()
     scores = evaluation.score_run(result, sim.poses, sim.landmarks, np.arange(len(sim.landmarks)))
     np.testing.assert_array_equal(result.checkpoints.steps, [20, 40, 60])
     # The last checkpoint is the final estimate's robot.
@@ -148,6 +148,6 @@ def test_score_run_scores_the_association_of_a_run_without_ids():
 
 def test_score_run_refuses_a_short_truth():
     sim = dcslam.simulate("straight", steps=10, seed=0)
-    result = dcslam.SlamPipeline(sim.steps, dcslam.SlamConfig(association="known"), ids_field="true_ids").run()
+    result = dcslam.SlamPipeline(sim.steps, dcslam.SlamConfig(association="known")).run()
     with pytest.raises(ValueError, match="'poses_true' has 5 poses for a run of 10 steps"):
         evaluation.score_run(result, sim.poses[:5], sim.landmarks, np.arange(len(sim.landmarks)))

@@ -59,7 +59,7 @@ def test_a_run_is_its_filter_run_by_hand():
     sim = dcslam.simulate("loop", steps=40, seed=3)
     slam = dcslam.EkfSlam(dcslam.SlamConfig(association="known", join_association="known", local_map_features=10,
                                             seed=3))
-    slam.run(sim.steps[:20], ids_field="true_ids")
+    slam.run(sim.steps[:20])
     est = slam.estimate()
     P = est.covariance[:3, :3]
     nees = dcslam.nees(est.robot, P, sim.poses[20], angle_indices=(2,))

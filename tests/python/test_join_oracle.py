@@ -156,8 +156,10 @@ def test_bad_oracle_calls_are_named_errors():
         slam.set_join_oracle([1], [2], "truth", min_first_features=2.5)
     with pytest.raises(ValueError, match="max_first_features"):
         slam.set_join_oracle([1], [2], "truth", min_first_features=5, max_first_features=4)
-    with pytest.raises(ValueError, match="max_first_features"):
+    with pytest.raises(ValueError, match="max_first_features must be an integer"):
         slam.set_join_oracle([1], [2], "truth", max_first_features=2.5)
+    with pytest.raises(ValueError, match="min_first_features must be an integer, got True"):
+        slam.set_join_oracle([1], [2], "truth", min_first_features=True)
     slam.predict(np.zeros(3), 1e-4 * np.eye(3))
     with pytest.raises(ValueError, match="before the first predict"):
         slam.set_join_oracle([1], [2], "truth")

@@ -27,7 +27,7 @@ def test_default_config_keeps_no_past_poses():
     assert dcslam.SlamConfig().keep_local_map_poses is False
     sim = dcslam.simulate("loop", steps=80, seed=1)
     for slam in (dcslam.DCSlam(known_config()), dcslam.EkfSlam(known_config(keep_local_map_poses=True))):
-        slam.run(sim.steps, ids_field="true_ids")
+        slam.run(sim.steps)
         est = slam.estimate()
         assert est.past_poses.shape == (0, 3) and est.past_poses.dtype == np.float64
         assert est.past_pose_ids.shape == (0,) and est.past_pose_ids.dtype == np.int64
@@ -41,7 +41,7 @@ def test_past_poses_are_the_local_map_boundaries(amortize, threaded):
     sim = dcslam.simulate("loop", steps=150, seed=2)
     cfg = known_config(keep_local_map_poses=True, amortize=amortize, threaded_joins=threaded)
     slam = dcslam.DCSlam(cfg)
-    slam.run(sim.steps, ids_field="true_ids")
+    slam.run(sim.steps)
     est = slam.estimate()
     expected = boundary_steps(sim, cfg.local_map_features)
     assert len(expected) > 4
@@ -66,7 +66,7 @@ def test_past_poses_are_the_local_map_boundaries(amortize, threaded):
         assert error @ np.linalg.solve(P, error) < 30.0
     # The same run without past poses gives the same map.
     plain = dcslam.DCSlam(known_config(amortize=amortize, threaded_joins=threaded))
-    plain.run(sim.steps, ids_field="true_ids")
+    plain.run(sim.steps)
     other = plain.estimate()
     np.testing.assert_array_equal(other.landmark_ids, est.landmark_ids)
     np.testing.assert_allclose(other.landmarks, est.landmarks, rtol=0, atol=1e-9)
@@ -78,7 +78,7 @@ def test_config_round_trips_through_a_dict_and_saved_maps_keep_past_poses(tmp_pa
     assert dcslam.SlamConfig.from_dict(cfg.to_dict()) == cfg
     sim = dcslam.simulate("loop", steps=80, seed=1)
     slam = dcslam.DCSlam(cfg)
-    slam.run(sim.steps, ids_field="true_ids")
+    slam.run(sim.steps)
     est = slam.estimate()
     assert len(est.past_poses) > 0
     from dcslam.io import load_map, save_map

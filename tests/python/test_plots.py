@@ -86,7 +86,7 @@ def test_an_estimate_alone_and_a_loaded_map_are_drawn(tmp_path, own_loop, figure
 def test_a_pipeline_result_cuts_a_datasets_truth_to_its_steps(tmp_path, figures):
     sim = dcslam.simulate("straight", steps=60, seed=1)
     config = dcslam.SlamConfig(association="known", join_association="known", local_map_features=10)
-    result = SlamPipeline(sim.steps, config, filter="ekf", ids_field="true_ids", max_steps=40).run()
+    result = SlamPipeline(sim.steps, config, filter="ekf", max_steps=40).run()
     # a dataset with ground truth names it poses_true / landmarks_true (dcslam.datasets.mrclam)
     truth = SimpleNamespace(poses_true=sim.poses, landmarks_true=sim.landmarks)
     plot_map(result, tmp_path / "map.png", truth=truth)

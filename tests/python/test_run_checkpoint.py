@@ -20,11 +20,11 @@ from test_pipeline import corridor_steps
 
 # MR.CLAM: its steps see enough landmarks for map-refit poses, and --checkpoint-every takes
 # robot estimates, so every output a run keeps across the stop is compared.
-RUN = ("run", "mrclam", "--max-steps", "300", "--filter", "both", "--local-map-features", "10",
-       "--checkpoint-every", "40", "--no-plots", "--no-progress")
+RUN = ("run", "mrclam", "--max-steps", "150", "--filter", "both", "--local-map-features", "10",
+       "--checkpoint-every", "20", "--no-plots", "--no-progress")
 # The refusals need no outputs: the iSAM file loads in a tenth of MR.CLAM's time.
 ISAM_RUN = ("run", "isam", str(Path(__file__).parent.parent / "data" / "isam_victoria_park.txt.gz"),
-            "--max-steps", "300", "--filter", "both", "--local-map-features", "10", "--no-plots", "--no-progress")
+            "--max-steps", "100", "--filter", "both", "--local-map-features", "10", "--no-plots", "--no-progress")
 
 
 def run(*args):
@@ -98,14 +98,14 @@ def test_the_cli_stopped_and_resumed_in_new_processes_writes_the_straight_runs_o
     straight, resumed, checkpoint = tmp_path / "straight", tmp_path / "resumed", tmp_path / "run.ckpt"
     out = run(*RUN, "--output", str(straight))
     assert out.returncode == 0, out.stdout + out.stderr
-    out = run(*RUN, "--output", str(resumed), "--checkpoint", str(checkpoint), "--checkpoint-interval", "70",
-              "--stop-after", "150")
+    out = run(*RUN, "--output", str(resumed), "--checkpoint", str(checkpoint), "--checkpoint-interval", "30",
+              "--stop-after", "75")
     assert out.returncode == 0, out.stdout + out.stderr
     message = " ".join(out.stdout.split())
-    assert "Stopped after 150 steps of ekf, 150 steps of dc" in message and "--resume" in message
+    assert "Stopped after 75 steps of ekf, 75 steps of dc" in message and "--resume" in message
     assert not list(resumed.glob("trajectory_*"))  # stopped: no outputs yet
     saved = io.read_run_checkpoint(checkpoint)["progress"]
-    assert {name: pickle.loads(p).steps_done for name, p in saved.items()} == {"ekf": 150, "dc": 150}
+    assert {name: pickle.loads(p).steps_done for name, p in saved.items()} == {"ekf": 75, "dc": 75}
     out = run(*RUN, "--output", str(resumed), "--resume", str(checkpoint), "--checkpoint", str(checkpoint))
     assert out.returncode == 0, out.stdout + out.stderr
     names = sorted(p.name for p in straight.iterdir())
@@ -123,7 +123,7 @@ def test_the_cli_stopped_and_resumed_in_new_processes_writes_the_straight_runs_o
                 timing_free(json.loads((straight / name).read_text())), name
     # the checkpoint now holds the whole run: resuming it only takes the final estimates
     saved = io.read_run_checkpoint(checkpoint)["progress"]
-    assert {name: pickle.loads(p).steps_done for name, p in saved.items()} == {"ekf": 300, "dc": 300}
+    assert {name: pickle.loads(p).steps_done for name, p in saved.items()} == {"ekf": 150, "dc": 150}
 
 
 def assert_one_line_error(out, *fragments):
@@ -145,8 +145,8 @@ def test_a_missing_damaged_or_foreign_checkpoint_is_one_line(tmp_path):
     whole = checkpoint.read_bytes()
     assert_one_line_error(run(*ISAM_RUN, "--output", output, "--resume", str(checkpoint), "--local-map-features",
                               "12"), "is of another run: its local_map_features is 10, this run's 12")
-    assert_one_line_error(run(*ISAM_RUN[:4], "200", *ISAM_RUN[5:], "--output", output, "--resume", str(checkpoint)),
-                          "its max_steps is 300, this run's 200")
+    assert_one_line_error(run(*ISAM_RUN[:4], "50", *ISAM_RUN[5:], "--output", output, "--resume", str(checkpoint)),
+                          "its max_steps is 100, this run's 50")
     damaged = tmp_path / "damaged.ckpt"
     damaged.write_bytes(whole[:len(whole) // 2])
     assert_one_line_error(run(*ISAM_RUN, "--output", output, "--resume", str(damaged)), "damaged checkpoint")

@@ -57,7 +57,8 @@ def test_api_shapes_and_types():
         m = len(s.z)
         assert s.u.shape == (3,) and s.Q.shape == (3, 3)
         assert s.z.shape == (m, 2) and s.R.shape == (m, 2, 2)
-        assert s.true_ids.shape == (m,) and s.true_ids.dtype == np.int64
+        assert s.landmark_ids.shape == (m,) and s.landmark_ids.dtype == np.int64
+        assert s.true_ids is s.landmark_ids  # docs/api.md's name for a simulated step's ids
         count += 1
     assert count == 500
     assert sim.steps[-1].index == 499 and sim.steps[499].index == 499

@@ -9,6 +9,7 @@
 
 #include <Eigen/Core>
 
+#include "dcslam/core/config.hpp"
 #include "dcslam/core/geometry.hpp"
 
 namespace dcslam {
@@ -29,6 +30,7 @@ struct AckermannVehicle {
 
 enum class Steering { Raw, Recalibrated };
 Steering parse_steering(const std::string& name, const char* field);
+const char* to_string(Steering steering);
 
 // ACFR's ASCII release recalibrated the steering: DRS ≈ 1.059·raw + 0.0026 rad
 // (docs/victoria_park.md, "The data").
@@ -108,5 +110,11 @@ struct VictoriaParkData {
 
 VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
                                     const VictoriaParkOptions& options);
+
+// The filter options for the park, the one preset that the Python package
+// (VictoriaPark.slam_config()) and dcslam_bench both start from: range–bearing from the laser at
+// laser_offset, JCBB inside local maps, RJC at joins with the trunks' spread in
+// join_feature_sigma (docs/victoria_park.md); SlamConfig's defaults elsewhere.
+SlamConfig victoria_park_slam_config(const Vec3& laser_offset);
 
 }  // namespace dcslam
