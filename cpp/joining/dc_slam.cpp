@@ -408,7 +408,8 @@ void DCSlam::run_amortized_budget() {
   if (queue_.empty()) return;
   double budget = 0.0;
   for (const auto& task : queue_) {
-    // A join not started yet: its fill before association (as MapJoin::remaining_work()).
+    // A join not started yet: a low guess, one unit a cell of its output's lower triangle and
+    // two a row; once the join exists, MapJoin::remaining_work() counts all its phases.
     const std::int64_t dim = task->result.lock()->expected_dim();
     const std::int64_t remaining =
         task->join ? task->join->remaining_work() : dim * (dim + 1) / 2 + 2 * dim;
