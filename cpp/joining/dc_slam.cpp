@@ -190,9 +190,13 @@ std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::ve
 
 namespace {
 
+// Only the features seen with another one get a list: most never are.
 void record_seen_with(const EkfSlam& local, SeenWith& seen_with) {
   const auto& ids = local.map().ids();
-  for (std::size_t k = 0; k < ids.size(); ++k) seen_with[ids[k]] = local.seen_with(static_cast<Eigen::Index>(k));
+  for (std::size_t k = 0; k < ids.size(); ++k) {
+    const std::vector<std::int64_t>& list = local.seen_with(static_cast<Eigen::Index>(k));
+    if (!list.empty()) seen_with[ids[k]] = list;
+  }
 }
 
 }  // namespace
@@ -657,13 +661,17 @@ DCSlam::NodeMap DCSlam::materialize(const FrozenNode& node, IdAliases& aliases, 
 }
 
 void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& seen_with,
-                              const std::function<std::int64_t(std::int64_t)>& resolve) const {
+                              const IdAliases& merged) const {
   if (!(config_.merge_radius > 0.0) || config_.association == Association::Known) return;
   const auto& ids = map.ids();
+  // A listed id as the map names it: the open local map's own merges are not in `merged` yet.
+  const auto now = [&](std::int64_t id) {
+    return follow_aliases(aliases, follow_aliases(merged, follow_aliases(local_->merged_ids(), id)));
+  };
   const auto listed = [&](std::int64_t id, std::int64_t other) {
-    const std::vector<std::int64_t>& list = seen_with[id];
-    return std::any_of(list.begin(), list.end(),
-                       [&](std::int64_t seen) { return follow_aliases(aliases, resolve(seen)) == other; });
+    const auto found = seen_with.find(id);
+    return found != seen_with.end() && std::any_of(found->second.begin(), found->second.end(),
+                                                   [&](std::int64_t seen) { return now(seen) == other; });
   };
   const auto may_be_one = [&](Eigen::Index a, Eigen::Index b) {
     const std::int64_t id_a = ids[static_cast<std::size_t>(a)], id_b = ids[static_cast<std::size_t>(b)];
@@ -717,10 +725,7 @@ Estimate DCSlam::estimate() const {
     joined = std::make_shared<GaussianMap>(join.take_result());
   }
   // The duplicates the joins left, pairs no join could decide (docs/data_association.md).
-  // The open local map's own merges are not in merged_into_ yet.
-  merge_duplicates(*joined, aliases, seen_with, [&](std::int64_t id) {
-    return follow_aliases(merged, follow_aliases(local_->merged_ids(), id));
-  });
+  merge_duplicates(*joined, aliases, seen_with, merged);
   if (config_.tree_relinearisation > 0 && !stack.empty()) {
     // The same pairs, every join redone from the local maps and re-linearised (join_tree.hpp).
     std::vector<TreeSpan> spans;

@@ -19,7 +19,6 @@
 #include <cstdint>
 #include <deque>
 #include <exception>
-#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -39,7 +38,8 @@ namespace dcslam {
 
 // Feature id -> the ids of the features within merge_radius seen in one scan with it, in its
 // local map (ids as they were then; the merges since map them on). Two measurements of one
-// scan come from two landmarks: D&C's final duplicate merge never merges such a pair.
+// scan come from two landmarks: D&C's final duplicate merge never merges such a pair. A feature
+// seen with none has no entry.
 using SeenWith = std::unordered_map<std::int64_t, std::vector<std::int64_t>>;
 
 struct JoinEvent {
@@ -199,11 +199,11 @@ class DCSlam : public SlamFilter {
   NodeMap materialize(const FrozenNode& node, IdAliases& aliases, SeenWith& seen_with) const;
   // Merges the duplicates the joins left in the estimate's `map` as the EKF merges its own
   // (never seen in one scan, each the other's only compatible feature within merge_radius),
-  // the test with join_feature_sigma as at a join. `resolve` maps the ids of `seen_with`'s
-  // lists to the map's before `aliases`. Records the merges in `aliases` and `seen_with`. Off
-  // with merge_radius 0 or known association.
-  void merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& seen_with,
-                        const std::function<std::int64_t(std::int64_t)>& resolve) const;
+  // the test with join_feature_sigma as at a join. The ids of `seen_with`'s lists follow the
+  // open local map's merges, `merged` (merged_into_ as estimate() copied it) and `aliases`.
+  // Records the merges in `aliases` and `seen_with`. Off with merge_radius 0 or known
+  // association.
+  void merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& seen_with, const IdAliases& merged) const;
   // Follows merged_into_, then the last estimate()'s aliases while they are current.
   std::int64_t resolve_one(std::int64_t id) const;
   Vec3 node_robot(const Node& node) const;
