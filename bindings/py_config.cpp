@@ -1,5 +1,6 @@
 #include <pybind11/eigen.h>
 #include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
 
 #include "py_conversions.hpp"
 #include "dcslam/core/config.hpp"
@@ -34,6 +35,7 @@ void define_config(py::module_& m) {
       .def_readwrite("min_sightings", &SlamConfig::min_sightings)
       .def_readwrite("tentative_window", &SlamConfig::tentative_window)
       .def_readwrite("merge_radius", &SlamConfig::merge_radius)
+      .def_readwrite("final_merge_confidence", &SlamConfig::final_merge_confidence)
       .def_readwrite("local_map_features", &SlamConfig::local_map_features)
       .def_property(
           "join_association",

@@ -13,7 +13,7 @@ where it is among the join's candidates (``set_join_oracle(..., "among_candidate
 ceiling of a perfect choice behind those gates.
 
 Usage: python studies/mrclam_association.py [--robots 1 2 4] [--data-dir PATH/resampled_50hz]
-       [--settings 0.99:0 0.999:0 0.999:0.2] [--oracle]
+       [--settings 0.99:0 0.999:0 0.999:0.2] [--oracle] [--final-merge-confidence 0.999]
 """
 
 from __future__ import annotations
@@ -39,6 +39,8 @@ def main() -> None:
     parser.add_argument("--settings", nargs="+", default=["0.99:0", "0.999:0", "0.999:0.1", "0.999:0.2", "0.999:0.3"],
                         help="gate_confidence:join_feature_sigma pairs")
     parser.add_argument("--oracle", action="store_true", help="also the among-candidates join oracle for D&C")
+    parser.add_argument("--final-merge-confidence", type=float, default=None,
+                        help="SlamConfig.final_merge_confidence of every run (default: unset)")
     args = parser.parse_args()
     print(f"{'robot':>5s} {'gate':>6s} {'join sigma':>10s} {'filter':6s} {'P':>6s} {'R':>6s} {'feat/lm':>7s} "
           f"{'wrong':>5s} {'robot err':>9s}")
@@ -49,7 +51,7 @@ def main() -> None:
         for setting in args.settings:
             gate, sigma = (float(value) for value in setting.split(":"))
             config = data.slam_config(association="jcbb", join_association="rjc", gate_confidence=gate,
-                                      join_feature_sigma=sigma)
+                                      join_feature_sigma=sigma, final_merge_confidence=args.final_merge_confidence)
             rows = []
             if gate not in ekf_done:  # join_feature_sigma does not touch the EKF
                 ekf_done.add(gate)

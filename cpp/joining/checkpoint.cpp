@@ -151,7 +151,7 @@ class Reader {
 
 // A field added to SlamConfig must be added here too (and kCheckpointVersion raised): the size
 // check below fails the build until it is.
-static_assert(sizeof(SlamConfig) == 152, "SlamConfig changed: update save_config/load_config");
+static_assert(sizeof(SlamConfig) == 168, "SlamConfig changed: update save_config/load_config");
 
 void save_config(Writer& out, const SlamConfig& c) {
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(c.observation));
@@ -163,6 +163,8 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod(c.min_sightings);
   out.pod(c.tentative_window);
   out.pod(c.merge_radius);
+  out.pod<std::uint8_t>(c.final_merge_confidence.has_value());
+  out.pod(c.final_merge_confidence.value_or(0.0));
   out.pod(c.local_map_features);
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(c.join_association));
   out.pod(c.rjc_b);
@@ -195,6 +197,9 @@ SlamConfig load_config(Reader& in) {
   c.min_sightings = in.pod<int>();
   c.tentative_window = in.pod<int>();
   c.merge_radius = in.pod<double>();
+  const bool has_final_merge_confidence = in.flag();
+  const auto final_merge_confidence = in.pod<double>();
+  if (has_final_merge_confidence) c.final_merge_confidence = final_merge_confidence;
   c.local_map_features = in.pod<int>();
   c.join_association = enum_value<JoinAssociation>(in, 3);
   c.rjc_b = in.pod<int>();

@@ -680,7 +680,8 @@ void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& se
   // Each feature of a local map carries the error a join models (join_feature_sigma), two of
   // one local map as much as two of different ones: the local EKF's own merge, which has no
   // such term, may have declined a pair this test accepts.
-  const auto merges = merge_duplicate_features(map, config_.merge_radius, chi2_quantile(2, config_.gate_confidence),
+  const double gate = chi2_quantile(2, config_.final_merge_confidence.value_or(config_.gate_confidence));
+  const auto merges = merge_duplicate_features(map, config_.merge_radius, gate,
                                                config_.join_feature_sigma, may_be_one);
   for (const auto& [from, to] : merges) {
     add_alias(aliases, from, to);

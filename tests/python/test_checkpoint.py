@@ -166,3 +166,9 @@ def test_a_filter_with_a_join_oracle_is_not_saved():
     slam.set_join_oracle([1], [1], "audit")
     with pytest.raises(ValueError, match="join oracle"):
         pickle.dumps(slam)
+
+
+@pytest.mark.parametrize("value", [None, 0.999])
+def test_a_checkpoint_keeps_an_optional_config_field_set_or_unset(value):
+    slam = dcslam.DCSlam(dcslam.SlamConfig(final_merge_confidence=value))
+    assert pickle.loads(pickle.dumps(slam)).config.final_merge_confidence == value

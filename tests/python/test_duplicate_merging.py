@@ -111,3 +111,40 @@ def test_dc_estimate_never_merges_two_measurements_of_one_scan(scenario):
         final = slam.resolve(ids)
         kept = final[final >= 0]
         assert len(np.unique(kept)) == len(kept)
+
+
+def test_final_merge_confidence_sets_only_the_final_merge():
+    sim = dcslam.revisit_scenario("small_loop_laps", seed=0)
+    base = dict(association="jcbb", join_association="rjc")
+
+    def final_map(**options):
+        slam = dcslam.DCSlam(dcslam.SlamConfig(**base, **options))
+        returned = slam.run(sim.steps)
+        return slam, returned, slam.estimate()
+
+    default, default_ids, default_map = final_map()
+    same, same_ids, same_map = final_map(final_merge_confidence=dcslam.SlamConfig().gate_confidence)
+    wider, wider_ids, wider_map = final_map(final_merge_confidence=0.9999)
+    # Unset is gate_confidence; the local maps and joins are the same runs in all three.
+    np.testing.assert_array_equal(same_map.landmarks, default_map.landmarks)
+    for a, b, c in zip(default_ids, same_ids, wider_ids):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(a, c)
+    assert default.stats.counters["features_merged"] == wider.stats.counters["features_merged"]
+    # The wider test merges more in estimate(), still never two measurements of one scan.
+    assert len(wider_map.landmark_ids) < len(default_map.landmark_ids)
+    for ids in wider_ids:
+        final = wider.resolve(ids)
+        kept = final[final >= 0]
+        assert len(np.unique(kept)) == len(kept)
+    # The EKF has no final merge: the option changes nothing in it.
+    ekf = [dcslam.EkfSlam(dcslam.SlamConfig(**base, **options)) for options in ({}, dict(final_merge_confidence=0.9999))]
+    for slam in ekf:
+        slam.run(sim.steps)
+    np.testing.assert_array_equal(ekf[0].estimate().landmarks, ekf[1].estimate().landmarks)
+
+
+@pytest.mark.parametrize("value", [0.0, 1.0, 1.5, -0.2, float("nan"), True])
+def test_final_merge_confidence_out_of_range_is_refused_by_name(value):
+    with pytest.raises(ValueError, match="final_merge_confidence"):
+        dcslam.DCSlam(dcslam.SlamConfig(final_merge_confidence=value))

@@ -112,7 +112,7 @@ def test_update_refuses_with_a_message_and_keeps_the_state(fuzzed_filters, m, da
 @given(fields=st.dictionaries(
     st.sampled_from(["local_map_features", "gate_confidence", "rjc_b", "rjc_p_good", "merge_radius",
                      "tentative_window", "min_sightings", "amortize", "threaded_joins", "association",
-                     "join_association", "seed", "join_feature_sigma"]),
+                     "join_association", "seed", "join_feature_sigma", "final_merge_confidence"]),
     st.one_of(awkward_floats, st.integers(-3, 10 ** 20), st.booleans(), st.none(), st.text(max_size=6)),
     max_size=3))
 def test_configs_are_refused_with_a_message(fields):

@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import dcslam
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -109,3 +111,20 @@ def test_timing_figures_refuses_a_scaling_file_as_sim_input(tmp_path):
     assert run.returncode != 0
     assert "not a 'dcslam_bench sim' output" in run.stderr
 
+
+
+def test_paired_association_is_zero_for_no_change_and_sees_a_change(tmp_path):
+    same, changed = tmp_path / "same.json", tmp_path / "changed.json"
+    default_radius = dcslam.SlamConfig().merge_radius
+    run_study("paired_association.py", "--seeds", 2, "--scenarios", "small_loop_laps",
+              "--b", f"merge_radius={default_radius}", "--json", same)
+    printed = run_study("paired_association.py", "--seeds", 2, "--scenarios", "small_loop_laps",
+                        "--b", "merge_radius=0", "--json", changed).stdout
+    assert "small_loop_laps" in printed
+    runs = json.loads(same.read_text())["runs"]
+    assert [run["seed"] for run in runs] == [0, 1]
+    assert all(run["a"] == run["b"] for run in runs)  # the same seeds and simulations on both sides
+    saved = json.loads(changed.read_text())
+    assert saved["b"]["merge_radius"] == 0 and saved["a"]["merge_radius"] == default_radius
+    assert any(run["a"] != run["b"] for run in saved["runs"])
+    assert run_study("paired_association.py", check=False).returncode != 0  # no --b: nothing to compare
