@@ -355,13 +355,9 @@ SlamConfig victoria_park_config(const Args& args, const VictoriaParkData& data) 
   return config;
 }
 
-// Mirrors python/dcslam/datasets.py, Isam2d.slam_config().
+// The preset Python's Isam2d.slam_config() gives too.
 SlamConfig isam_config(const Args& args) {
-  SlamConfig config;
-  config.observation = ObservationModel::Point;
-  config.sensor_offset = Vec3::Zero();
-  config.association = Association::Known;
-  config.join_association = JoinAssociation::Known;
+  SlamConfig config = isam2d_slam_config();
   apply_run_options(args, config);
   return config;
 }

@@ -105,6 +105,9 @@ void define_datasets(py::module_& root) {
       },
       py::arg("laser_offset"), "The filter options for Victoria Park (victoria_park_slam_config in C++).");
 
+  m.def("isam2d_slam_config", &isam2d_slam_config,
+        "The filter options for replaying an iSAM 2D file (isam2d_slam_config in C++).");
+
   m.def(
       "read_isam2d",
       [](const std::string& path) {

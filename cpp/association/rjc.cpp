@@ -6,6 +6,7 @@
 #include <random>
 #include <tuple>
 #include <unordered_map>
+#include <utility>
 
 #include <Eigen/Cholesky>
 
@@ -72,7 +73,7 @@ int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel
                                 double confidence, double* joint_distance_sq) {
   JointCompatibilityEnforcement enforcement(feature_of, model, confidence,
                                             RjcOptions().panel_width, RjcOptions().work_unit);
-  while (!enforcement.done()) enforcement.step();
+  enforcement.finish();
   if (joint_distance_sq != nullptr) *joint_distance_sq = enforcement.joint_distance_sq();
   return enforcement.removed();
 }
@@ -80,7 +81,7 @@ int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel
 int accept_sequentially(const std::vector<Pairing>& order, int seed_size,
                         std::vector<int>& feature_of, const PairingModel& model, double gate) {
   SequentialAcceptance acceptance(order, seed_size, feature_of, model, gate);
-  while (!acceptance.done()) acceptance.step();
+  acceptance.finish();
   return acceptance.removed();
 }
 
@@ -113,7 +114,7 @@ void SequentialAcceptance::condition(const Pairing& pairing, Vec2& innovation, M
   covariance = model_.covariance(pairing, pairing) - cross_kept.transpose() * cross_kept;
 }
 
-std::int64_t SequentialAcceptance::step() {
+std::int64_t SequentialAcceptance::step(std::int64_t) {
   const Pairing& pairing = order_[static_cast<std::size_t>(next_)];
   const auto m = static_cast<Eigen::Index>(kept_.size());
   const bool seed = next_ < seed_size_;
@@ -193,24 +194,24 @@ JointCompatibilityEnforcement::JointCompatibilityEnforcement(std::vector<int>& f
 // (S_rr)^-1 = L_rr - L_ra L_aa^-1 L_ar (L = S^-1): the same rank-2 update applied to the whole
 // L also zeroes a's rows and columns, so removed pairings need no compaction. a's share of D^2
 // is y_a' L_aa^-1 y_a with y = L nu.
-std::int64_t JointCompatibilityEnforcement::step() {
+std::int64_t JointCompatibilityEnforcement::step(std::int64_t budget) {
   const std::vector<Pairing>& pairings = stacked_.pairings;
   const auto k = static_cast<Eigen::Index>(pairings.size());
   Eigen::VectorXd& innovation = stacked_.innovation;  // entries of removed pairings are zeroed
-  Eigen::MatrixXd& covariance = stacked_.covariance;
+  const Eigen::MatrixXd& factor = cholesky_.matrix();
   const auto n = static_cast<std::int64_t>(2 * k);
   switch (stage_) {
     case Stage::Stack: {
       const Eigen::Index a = next_;
       stacked_.stack(a, model_);
       if (++next_ == k) {
-        cholesky_ = ResumableCholesky(2 * k, panel_width_);
+        cholesky_ = ResumableCholesky(std::move(stacked_.covariance), panel_width_);
         stage_ = Stage::Factor;
       }
       return kPairingCovarianceUnits * (a + 1);
     }
     case Stage::Factor: {
-      const std::int64_t work = cholesky_.step(covariance);
+      const std::int64_t work = cholesky_.step(budget);
       if (cholesky_.failed()) {
         throw InvalidArgument("enforce_joint_compatibility: joint covariance not positive definite");
       }
@@ -219,7 +220,7 @@ std::int64_t JointCompatibilityEnforcement::step() {
     }
     case Stage::Test: {
       const double whole_distance_sq =
-          covariance.triangularView<Eigen::Lower>().solve(innovation).squaredNorm();
+          factor.triangularView<Eigen::Lower>().solve(innovation).squaredNorm();
       if (whole_distance_sq <= chi2_quantile(2 * static_cast<int>(k), confidence_)) {
         distance_sq_ = whole_distance_sq;
         stage_ = Stage::Done;
@@ -228,7 +229,7 @@ std::int64_t JointCompatibilityEnforcement::step() {
         next_ = 0;
         stage_ = Stage::Invert;
       }
-      return 1 + n * n / 16;
+      return 1 + work_units(n * n / 2);
     }
     case Stage::Invert: {
       // S^-1 = L^-T L^-1 a block of columns at a time (columns are independent).
@@ -238,15 +239,15 @@ std::int64_t JointCompatibilityEnforcement::step() {
       auto columns = information_.middleCols(c, w);
       columns.setZero();
       columns.block(c, 0, w, w).setIdentity();
-      covariance.triangularView<Eigen::Lower>().solveInPlace(columns);
-      covariance.triangularView<Eigen::Lower>().transpose().solveInPlace(columns);
+      factor.triangularView<Eigen::Lower>().solveInPlace(columns);
+      factor.triangularView<Eigen::Lower>().transpose().solveInPlace(columns);
       next_ = c + w;
       if (next_ == 2 * k) {
         active_.assign(static_cast<std::size_t>(k), true);
         remaining_ = k;
         stage_ = Stage::Remove;
       }
-      return 1 + n * n * w / 8;
+      return 1 + work_units(n * n * w);
     }
     case Stage::Remove: {
       Eigen::MatrixXd& information = information_;
@@ -254,7 +255,7 @@ std::int64_t JointCompatibilityEnforcement::step() {
       distance_sq_ = innovation.dot(weighted);
       if (distance_sq_ <= chi2_quantile(2 * static_cast<int>(remaining_), confidence_)) {
         stage_ = Stage::Done;
-        return 1 + n * n / 8;
+        return 1 + work_units(n * n);
       }
       Eigen::Index worst = -1;
       double worst_share = -1.0;
@@ -281,7 +282,7 @@ std::int64_t JointCompatibilityEnforcement::step() {
         distance_sq_ = 0.0;
         stage_ = Stage::Done;
       }
-      return 1 + 3 * n * n / 8;
+      return 1 + work_units(3 * n * n);
     }
     case Stage::Done:
       break;
@@ -295,15 +296,15 @@ std::int64_t JointCompatibilityEnforcement::remaining_work() const {
   const auto k = static_cast<std::int64_t>(stacked_.pairings.size()), n = 2 * k;
   switch (stage_) {
     case Stage::Stack:
-      return kPairingCovarianceUnits * (k * (k + 1) - next_ * (next_ + 1)) / 2 + n * n * n / 24;
+      return kPairingCovarianceUnits * (k * (k + 1) - next_ * (next_ + 1)) / 2 + work_units(n * n * n / 3);
     case Stage::Factor:
       return cholesky_.remaining_work() + 1;
     case Stage::Test:
-      return 1 + n * n / 16;
+      return 1 + work_units(n * n / 2);
     case Stage::Invert:
-      return n * n * (n - next_) / 8 + remaining_ * 3 * n * n / 8;
+      return work_units(n * n * (n - next_)) + work_units(remaining_ * 3 * n * n);
     case Stage::Remove:
-      return 1 + remaining_ * 3 * n * n / 8;
+      return 1 + work_units(remaining_ * 3 * n * n);
     case Stage::Done:
       break;
   }
@@ -313,7 +314,7 @@ std::int64_t JointCompatibilityEnforcement::remaining_work() const {
 RjcResult rjc(const CandidateLists& candidates, const PairingModel& model,
               const RjcOptions& options) {
   RjcSearch search(candidates, model, options);
-  while (!search.done()) search.advance(std::numeric_limits<std::int64_t>::max());
+  search.finish();
   return search.result();
 }
 
@@ -329,55 +330,49 @@ RjcSearch::RjcSearch(const CandidateLists& candidates, const PairingModel& model
       }()),
       gate_(chi2_quantile(2, options.confidence)), rng_(options.seed) {}
 
-std::int64_t RjcSearch::advance(std::int64_t budget) {
-  std::int64_t spent = 0;
-  while (stage_ != Stage::Done && (spent == 0 || spent < budget)) {
-    switch (stage_) {
-      case Stage::Start:
-        spent += start();
-        break;
-      case Stage::Seed:
-        spent += seed();
-        break;
-      case Stage::Conditional:
-        spent += conditional_next();
-        break;
-      case Stage::CompleteTry:
-        spent += complete_try();
-        break;
-      case Stage::VerifyTry:
-        spent += try_verification_->step();
-        if (try_verification_->done()) end_of_try();
-        break;
-      case Stage::Sequential:
-        spent += sequential_->step();
-        if (sequential_->done()) {
-          result_.dropped = sequential_->removed();
-          completion_.clear();
-          next_completion_ = 0;
-          stage_ = Stage::Completion;
-        }
-        break;
-      case Stage::Completion:
-        spent += completion_next();
-        break;
-      case Stage::CompletionAdd:
-        spent += completion_add_next();
-        break;
-      case Stage::Joint:
-        spent += joint_->step();
-        if (joint_->done()) {
-          result_.dropped += joint_->removed();
-          result_.joint_distance_sq = joint_->joint_distance_sq();
-          result_.pairings = sequential_->kept() - joint_->removed();
-          stage_ = Stage::Done;
-        }
-        break;
-      case Stage::Done:
-        break;
+std::int64_t RjcSearch::step(std::int64_t budget) {
+  switch (stage_) {
+    case Stage::Start:
+      return start();
+    case Stage::Seed:
+      return seed();
+    case Stage::Conditional:
+      return conditional_next();
+    case Stage::CompleteTry:
+      return complete_try();
+    case Stage::VerifyTry: {
+      const std::int64_t work = try_verification_->step(budget);
+      if (try_verification_->done()) end_of_try();
+      return work;
     }
+    case Stage::Sequential: {
+      const std::int64_t work = sequential_->step(budget);
+      if (sequential_->done()) {
+        result_.dropped = sequential_->removed();
+        completion_.clear();
+        next_completion_ = 0;
+        stage_ = Stage::Completion;
+      }
+      return work;
+    }
+    case Stage::Completion:
+      return completion_next();
+    case Stage::CompletionAdd:
+      return completion_add_next();
+    case Stage::Joint: {
+      const std::int64_t work = joint_->step(budget);
+      if (joint_->done()) {
+        result_.dropped += joint_->removed();
+        result_.joint_distance_sq = joint_->joint_distance_sq();
+        result_.pairings = sequential_->kept() - joint_->removed();
+        stage_ = Stage::Done;
+      }
+      return work;
+    }
+    case Stage::Done:
+      break;
   }
-  return spent;
+  return 0;
 }
 
 // The overlap; a small one (|O| <= b) is paired by plain JCBB with the star in this step.
@@ -548,8 +543,8 @@ std::int64_t RjcSearch::complete_try() {
   try_pairings_ = pairings;
   try_score_ = score;
   const auto c = static_cast<std::int64_t>(conditional_.size());
-  const std::int64_t work = 1 + c * (4 + static_cast<std::int64_t>(used_features_.size()) / 8) +
-                            static_cast<std::int64_t>(feature_of_.size()) / 8;
+  const std::int64_t work = 1 + c * (4 + work_units(static_cast<std::int64_t>(used_features_.size()))) +
+                            work_units(static_cast<std::int64_t>(feature_of_.size()));
   if (options_.verify && pairings > options_.b) {
     // Scored once verified (see rjc()), a pairing per step like the final verification; the
     // kept hypothesis is the try's own, which that verification re-tests the same way.

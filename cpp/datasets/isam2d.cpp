@@ -146,4 +146,13 @@ Isam2dData read_isam2d(const std::string& path) {
   return data;
 }
 
+SlamConfig isam2d_slam_config() {
+  SlamConfig config;
+  config.observation = ObservationModel::Point;
+  config.sensor_offset = Vec3::Zero();
+  config.association = Association::Known;
+  config.join_association = JoinAssociation::Known;
+  return config;
+}
+
 }  // namespace dcslam

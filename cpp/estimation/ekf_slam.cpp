@@ -130,13 +130,13 @@ void EkfSlam::prune_tentative() {
   remove_tentative([](const Track&) { return true; });
 }
 
-std::vector<EkfSlam::TentativeFeature> EkfSlam::tentative_features() const {
-  std::vector<TentativeFeature> features;
+std::vector<EkfSlam::TentativeTrack> EkfSlam::tentative_features() const {
+  std::vector<TentativeTrack> features;
   if (!tentative_policy()) return features;
   for (std::size_t k = 0; k < tracks_.size(); ++k) {
     const Track& track = tracks_[k];
     if (track.sightings < config_.min_sightings) {
-      features.push_back(TentativeFeature{map_.ids()[k], track.first_seen_step, track.last_seen_step});
+      features.push_back(TentativeTrack{map_.ids()[k], track.first_seen_step, track.last_seen_step});
     }
   }
   return features;

@@ -1,6 +1,7 @@
 #include "dcslam/joining/constrained_update.hpp"
 
 #include <algorithm>
+#include <utility>
 
 #include "dcslam/joining/join_cost.hpp"
 
@@ -70,23 +71,22 @@ std::int64_t ConstrainedUpdate::constrain_next_pairs() {
 void ConstrainedUpdate::begin_factor() {
   const Index d1 = first_.dim();
   const Index r = static_cast<Index>(pairs_.size());
-  Eigen::MatrixXd& S = constraint_factor_;
-  S.resize(2 * r, 2 * r);
+  Eigen::MatrixXd S(2 * r, 2 * r);
   for (Index a = 0; a < r; ++a) {
     const auto [i, j] = pairs_[static_cast<std::size_t>(a)];
     S.middleRows<2>(2 * a) = gain_.middleRows<2>(GaussianMap::feature_offset(i)) -
                              gain_.middleRows<2>(d1 + GaussianMap::feature_offset(j));
   }
   S = 0.5 * (S + S.transpose()).eval();
-  cholesky_ = ResumableCholesky(2 * r, options_.block_columns);
+  cholesky_ = ResumableCholesky(std::move(S), options_.block_columns);
 }
 
 // One panel of S = L L' (ResumableCholesky); the order of operations is fixed, so slicing
 // never changes the result.
 std::int64_t ConstrainedUpdate::factor_next_panel() {
-  const std::int64_t cost = factor_constraint_panel(cholesky_, constraint_factor_);
+  const std::int64_t cost = factor_constraint_panel(cholesky_);
   if (cholesky_.done()) {
-    constraint_factor_.triangularView<Eigen::Lower>().solveInPlace(whitened_h_);
+    cholesky_.matrix().triangularView<Eigen::Lower>().solveInPlace(whitened_h_);
     next_solve_row_ = 0;
   }
   return cost;
@@ -94,14 +94,15 @@ std::int64_t ConstrainedUpdate::factor_next_panel() {
 
 // W = P H' L^-T, in place, one block of rows at a time (rows are independent).
 std::int64_t ConstrainedUpdate::solve_next_rows() {
-  const Index r2 = constraint_factor_.rows();
+  const Eigen::MatrixXd& factor = cholesky_.matrix();
+  const Index r2 = factor.rows();
   const Index rows = std::min<Index>(
       join_cost::solve_rows_per_unit(options_.work_unit, options_.block_columns,
                                      static_cast<Index>(pairs_.size())),
       gain_.rows() - next_solve_row_);
   if (r2 > 0) {
     auto block = gain_.middleRows(next_solve_row_, rows);
-    constraint_factor_.triangularView<Eigen::Lower>().transpose().solveInPlace<Eigen::OnTheRight>(block);
+    factor.triangularView<Eigen::Lower>().transpose().solveInPlace<Eigen::OnTheRight>(block);
   }
   next_solve_row_ += rows;
   return static_cast<std::int64_t>(rows) * join_cost::solve_row(static_cast<std::int64_t>(pairs_.size()));

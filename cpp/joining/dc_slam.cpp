@@ -413,7 +413,10 @@ void DCSlam::run_amortized_budget() {
   double budget = 0.0;
   for (const auto& task : queue_) {
     // A join not started yet: a low guess, one unit a cell of its output's lower triangle and
-    // two a row; once the join exists, MapJoin::remaining_work() counts all its phases.
+    // two a row; once the join exists, MapJoin::remaining_work() counts all its phases. Its
+    // count before the first step (with the assembly, the solve and the association
+    // besides) is not used here: it raises these budgets and so moves every
+    // amortized run's schedule (which join finishes at which step, and the online poses).
     const std::int64_t dim = task->result.lock()->expected_dim();
     const std::int64_t remaining =
         task->join ? task->join->remaining_work() : dim * (dim + 1) / 2 + 2 * dim;

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <limits>
 #include <memory>
 #include <unordered_map>
 
@@ -58,34 +57,27 @@ std::vector<std::pair<Index, Index>> associate_by_id(const GaussianMap& first,
 
 JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options) {
   JoinAssociator associator(frame, options);
-  while (!associator.done()) associator.advance(std::numeric_limits<std::int64_t>::max());
+  associator.finish();
   return associator.result();
 }
 
 JoinAssociator::JoinAssociator(const JoinFrame& frame, const JoinOptions& options)
     : frame_(frame), options_(options), model_(frame, options.feature_sigma) {}
 
-std::int64_t JoinAssociator::advance(std::int64_t budget) {
-  std::int64_t spent = 0;
-  while (stage_ != Stage::Done && (spent == 0 || spent < budget)) {
-    switch (stage_) {
-      case Stage::Prepare:
-        spent += prepare();
-        break;
-      case Stage::Candidates:
-        spent += candidates_of_next();
-        break;
-      case Stage::Rjc:
-        spent += advance_rjc(std::max<std::int64_t>(1, budget - spent));
-        break;
-      case Stage::Jcbb:
-        spent += run_jcbb();
-        break;
-      case Stage::Done:
-        break;
-    }
+std::int64_t JoinAssociator::step(std::int64_t budget) {
+  switch (stage_) {
+    case Stage::Prepare:
+      return prepare();
+    case Stage::Candidates:
+      return candidates_of_next();
+    case Stage::Rjc:
+      return advance_rjc(budget);
+    case Stage::Jcbb:
+      return run_jcbb();
+    case Stage::Done:
+      break;
   }
-  return spent;
+  return 0;
 }
 
 // Candidate search radius: a pair (i, j) passes the gate only if |f'_j - f_i| <=
@@ -164,7 +156,7 @@ std::int64_t JoinAssociator::advance_rjc(std::int64_t budget) {
   if (rjc_result.pairings == 0) {
     stage_ = Stage::Jcbb;
   } else {
-    finish(rjc_result.feature_of);
+    conclude(rjc_result.feature_of);
   }
   return spent;
 }
@@ -177,9 +169,9 @@ std::int64_t JoinAssociator::run_jcbb() {
   jcbb_options.confidence = options_.rjc.confidence;
   if (options_.association == JoinAssociation::Rjc) jcbb_options.max_nodes = options_.fallback_jcbb_nodes;
   const JcbbResult jcbb_result = jcbb(candidates_, model_, jcbb_options);
-  std::int64_t candidate_count = 0;  // before finish() releases the lists
+  std::int64_t candidate_count = 0;  // before conclude() releases the lists
   for (const auto& list : candidates_) candidate_count += static_cast<std::int64_t>(list.size());
-  finish(jcbb_result.feature_of);
+  conclude(jcbb_result.feature_of);
   return 1 + kPairingCovarianceUnits *
                  (candidate_count + jcbb_result.nodes_expanded * std::max(1, jcbb_result.pairings));
 }
@@ -259,7 +251,7 @@ void JoinAssociator::apply_oracle(const std::vector<int>& truth, std::vector<int
   }
 }
 
-void JoinAssociator::finish(std::vector<int> feature_of) {
+void JoinAssociator::conclude(std::vector<int> feature_of) {
   if (options_.oracle) {
     const std::vector<int> truth = oracle_pairing();
     audit_oracle(truth);

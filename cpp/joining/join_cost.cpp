@@ -2,6 +2,8 @@
 
 #include <algorithm>
 
+#include "dcslam/core/resumable_work.hpp"
+
 namespace dcslam::join_cost {
 
 using Index = Eigen::Index;
@@ -59,13 +61,13 @@ Index solve_rows_per_unit(Index work_unit, Index block_columns, Index r) {
 }
 
 // An assembled row: its 6 + 2r low-rank factors, copied between column- and row-major blocks.
-std::int64_t assemble_row(std::int64_t r) { return (6 + 2 * r) * kAssembleElementCost / 8; }
+std::int64_t assemble_row(std::int64_t r) { return work_units((6 + 2 * r) * kAssembleElementCost); }
 Index assemble_rows_per_unit(Index work_unit, Index k) {
   return std::max<Index>(16, work_unit / (kAssembleElementCost * (6 + k)));
 }
 
 // A written element of the result costs a write plus a dot product of length 3 + 2r.
-std::int64_t fill_element(std::int64_t r) { return 1 + (3 + 2 * r) / 8; }
+std::int64_t fill_element(std::int64_t r) { return 1 + work_units(3 + 2 * r); }
 
 // A tile element costs its base (a gather, and for m2 a rotation: about 16 multiply-adds'
 // worth) plus its dot product of length 3 + k.

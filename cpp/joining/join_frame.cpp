@@ -11,9 +11,9 @@ namespace dcslam {
 
 using Index = Eigen::Index;
 
-std::int64_t factor_constraint_panel(ResumableCholesky& cholesky, Eigen::MatrixXd& S) {
-  const std::int64_t work = cholesky.step(S);
-  if (work < 0) {
+std::int64_t factor_constraint_panel(ResumableCholesky& cholesky) {
+  const std::int64_t work = cholesky.step(1);
+  if (cholesky.failed()) {
     throw std::runtime_error(
         "map join: the covariance of the matched-pair constraints is not positive definite "
         "(two matched features are perfectly correlated)");

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <type_traits>
+#include <utility>
 
 #include <Eigen/LU>
 
@@ -148,19 +149,19 @@ std::int64_t JoinRelinearisation::unit() {
     if (end == 2 * r) {
       gn.next_build = 0;
       gn.factor_built = true;
-      gn.cholesky = ResumableCholesky(2 * r, block_columns_);
+      gn.cholesky = ResumableCholesky(std::move(gn.factor), block_columns_);
     }
     return std::max<std::int64_t>(1, work);
   }
-  if (!gn.cholesky.done()) return factor_constraint_panel(gn.cholesky, gn.factor);
+  if (!gn.cholesky.done()) return factor_constraint_panel(gn.cholesky);
   // The Gauss–Newton step, and Newton's (docs/divide_and_conquer.md): with the last step's
   // multipliers the Lagrangian's curvature Σ λ_k ∇²c_k is U B U', U = [e_θ, a] (a: -Rot_θ' λ_k
   // on each f_j, Rot_θ = dRot/dθ), B = [h 1; 1 0] (h = Σ λ_k' Rot f_j). M = P^-1 - U B U' has
   // M^-1 = P + P U K U'P with K^-1 = B^-1 - U'P U, and Newton's system H M^-1 H' = S + W K W'
   // (W = H P U) is solved by Woodbury on S's factor: both steps cost one factor.
   const auto solve_S = [&](auto& rhs) {
-    gn.factor.triangularView<Eigen::Lower>().solveInPlace(rhs);
-    gn.factor.triangularView<Eigen::Lower>().transpose().solveInPlace(rhs);
+    gn.cholesky.matrix().triangularView<Eigen::Lower>().solveInPlace(rhs);
+    gn.cholesky.matrix().triangularView<Eigen::Lower>().transpose().solveInPlace(rhs);
   };
   const Mat2& rotation = gn.rotation;
   // s+ = s0 + P (H'λ + U q) and g+ = H'λ + U q keep s+ - s0 = P g+ (q = 0: Gauss–Newton).
@@ -248,6 +249,7 @@ std::int64_t JoinRelinearisation::unit() {
   ++gn.steps;
   if (gn.steps + 1 >= max_iterations_) gn.converged = true;
   gn.factor_built = false;
+  gn.cholesky = ResumableCholesky();
   // Both steps' solves and products.
   return join_cost::step_solve(ds, r);
 }

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <chrono>
-#include <limits>
 #include <stdexcept>
 #include <string>
 
@@ -122,83 +121,78 @@ std::int64_t MapJoin::remaining_work() const {
   }
 }
 
-std::int64_t MapJoin::advance(std::int64_t budget) {
-  double& seconds = report_.seconds_total;
-  ScopedTimer timer(seconds);
+std::int64_t MapJoin::step(std::int64_t budget) {
+  ScopedTimer timer(report_.seconds_total);
   std::int64_t spent = 0;
-  while (phase_ != Phase::Done && (spent == 0 || spent < budget)) {
-    switch (phase_) {
-      case Phase::Associate:
-        spent += associate_next(std::max<std::int64_t>(1, budget - spent));
-        break;
-      case Phase::Relinearise:
-        if (!relinearisation_started_) {
-          relinearisation_.begin(*first_, *second_, pairs_, options_);
-          report_.iterations = relinearisation_.iterations();
-          relinearisation_started_ = true;
-          spent += join_cost::relinearise_begin(static_cast<std::int64_t>(pairs_.size()));
-        } else if (!relinearisation_.converged()) {
-          spent += relinearisation_.unit();
-        }
-        if (relinearisation_.converged()) {
-          spent += relinearisation_.finish();
-          report_.iterations = relinearisation_.iterations();
-          phase_ = Phase::Constrain;
-        }
-        break;
-      case Phase::Constrain:
-        if (!update_) {
-          update_ = std::make_unique<ConstrainedUpdate>(*first_, *second_, pairs_, layout_, options_,
-                                                        relinearisation_.first_robot(),
-                                                        relinearisation_.second_x());
-          spent += static_cast<std::int64_t>(second_->dim());
-        }
-        spent += update_->constrain_next_pairs();
-        if (update_->constrained()) {
-          update_->begin_factor();
-          spent += join_cost::begin_factor(static_cast<std::int64_t>(pairs_.size()));
-          phase_ = update_->factored() ? Phase::Solve : Phase::Factor;
-        }
-        break;
-      case Phase::Factor:
-        spent += update_->factor_next_panel();
-        if (update_->factored()) phase_ = Phase::Solve;
-        break;
-      case Phase::Solve:
-        spent += update_->solve_next_rows();
-        if (update_->solve_rows_left() == 0) phase_ = Phase::Assemble;
-        break;
-      case Phase::Assemble:
-        if (!update_->assembling()) {
-          update_->begin_assemble();
-          report_.features_joined = update_->result().num_features();
-        }
-        spent += update_->assemble_next_rows();
-        if (update_->assembled()) {
-          fill_ = std::make_unique<JoinFill>(*first_, *second_, layout_, options_, update_->rotation(),
-                                             static_cast<Index>(pairs_.size()),
-                                             update_->take_correction(), update_->take_result());
-          update_.reset();
-          phase_ = Phase::Fill;
-        }
-        break;
-      case Phase::Fill:
-        spent += fill_->fill_next_tile();
-        if (fill_->done()) {
-          result_ = fill_->take_result();
-          release_inputs();
-          phase_ = Phase::Done;
-        }
-        break;
-      case Phase::Done:
-        break;
-    }
+  switch (phase_) {
+    case Phase::Associate:
+      spent += associate_next(budget);
+      break;
+    case Phase::Relinearise:
+      if (!relinearisation_started_) {
+        relinearisation_.begin(*first_, *second_, pairs_, options_);
+        report_.iterations = relinearisation_.iterations();
+        relinearisation_started_ = true;
+        spent += join_cost::relinearise_begin(static_cast<std::int64_t>(pairs_.size()));
+      } else if (!relinearisation_.converged()) {
+        spent += relinearisation_.unit();
+      }
+      if (relinearisation_.converged()) {
+        spent += relinearisation_.finish();
+        report_.iterations = relinearisation_.iterations();
+        phase_ = Phase::Constrain;
+      }
+      break;
+    case Phase::Constrain:
+      if (!update_) {
+        update_ = std::make_unique<ConstrainedUpdate>(*first_, *second_, pairs_, layout_, options_,
+                                                      relinearisation_.first_robot(),
+                                                      relinearisation_.second_x());
+        spent += static_cast<std::int64_t>(second_->dim());
+      }
+      spent += update_->constrain_next_pairs();
+      if (update_->constrained()) {
+        update_->begin_factor();
+        spent += join_cost::begin_factor(static_cast<std::int64_t>(pairs_.size()));
+        phase_ = update_->factored() ? Phase::Solve : Phase::Factor;
+      }
+      break;
+    case Phase::Factor:
+      spent += update_->factor_next_panel();
+      if (update_->factored()) phase_ = Phase::Solve;
+      break;
+    case Phase::Solve:
+      spent += update_->solve_next_rows();
+      if (update_->solve_rows_left() == 0) phase_ = Phase::Assemble;
+      break;
+    case Phase::Assemble:
+      if (!update_->assembling()) {
+        update_->begin_assemble();
+        report_.features_joined = update_->result().num_features();
+      }
+      spent += update_->assemble_next_rows();
+      if (update_->assembled()) {
+        fill_ = std::make_unique<JoinFill>(*first_, *second_, layout_, options_, update_->rotation(),
+                                           static_cast<Index>(pairs_.size()),
+                                           update_->take_correction(), update_->take_result());
+        update_.reset();
+        phase_ = Phase::Fill;
+      }
+      break;
+    case Phase::Fill:
+      spent += fill_->fill_next_tile();
+      if (fill_->done()) {
+        result_ = fill_->take_result();
+        release_inputs();
+        phase_ = Phase::Done;
+      }
+      break;
+    case Phase::Done:
+      break;
   }
   report_.work_units += spent;
   return spent;
 }
-
-void MapJoin::finish() { advance(std::numeric_limits<std::int64_t>::max()); }
 
 GaussianMap MapJoin::take_result() {
   if (phase_ != Phase::Done) throw std::logic_error("MapJoin::take_result: join not finished");

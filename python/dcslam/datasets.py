@@ -126,10 +126,11 @@ class Isam2d:
         return PackedSteps(self.u, self.Q, self.z, self.R, self.offsets, self.landmark_ids)
 
     def slam_config(self, **overrides) -> SlamConfig:
-        """A :class:`~dcslam.SlamConfig` for replaying the file: Cartesian point
-        observations from the robot frame, the file's landmark ids as known association."""
-        values = dict(observation="point", sensor_offset=(0.0, 0.0, 0.0), association="known",
-                      join_association="known")
+        """A :class:`~dcslam.SlamConfig` for replaying the file, the preset ``dcslam_bench isam``
+        runs too (C++'s ``isam2d_slam_config``): Cartesian point observations from the robot
+        frame, the file's landmark ids as known association. Keyword arguments override
+        fields."""
+        values = SlamConfig._from_core(_core.datasets.isam2d_slam_config()).to_dict()
         values.update(overrides)
         return SlamConfig(**values)
 

@@ -253,7 +253,7 @@ TEST(Rjc, VerificationDropsTheInconsistentPairing) {
   JointCompatibilityEnforcement enforcement(sliced, problem.model, 0.99, 1, 1);
   int steps = 0;
   while (!enforcement.done()) {
-    enforcement.step();
+    enforcement.advance(1);
     ++steps;
   }
   EXPECT_GT(steps, static_cast<int>(problem.truth.size()));
@@ -298,7 +298,7 @@ TEST(Rjc, SequentialAcceptanceKeepsThePairingsCompatibleWithAllEarlierOnes) {
   }
   std::vector<int> sequential = feature_of;
   SequentialAcceptance acceptance(order, 4, sequential, problem.model, gate);
-  while (!acceptance.done()) acceptance.step();
+  acceptance.finish();
   EXPECT_EQ(accept_sequentially(order, 4, feature_of, problem.model, gate), expected_removed);
   EXPECT_EQ(feature_of, expected);
   EXPECT_EQ(sequential, expected);
@@ -326,7 +326,7 @@ TEST(Rjc, CompletionTestsAPairingAgainstAllKeptOnes) {
   for (const Pairing& pairing : order) feature_of[pairing.measurement] = pairing.feature;
   const double gate = chi2_quantile(2, 0.99);
   SequentialAcceptance acceptance(order, 4, feature_of, problem.model, gate);
-  while (!acceptance.done()) acceptance.step();
+  acceptance.finish();
   ASSERT_EQ(acceptance.removed(), 0);
   for (const Pairing& pairing : left_out) {
     std::vector<int> with = feature_of;

@@ -116,7 +116,10 @@ def test_slam_configs():
     assert dcslam.SlamConfig._from_core(cfg._to_core()) == cfg
     assert vp.options == dcslam.datasets.VICTORIA_PARK_DEFAULTS == dcslam._core.datasets.victoria_park_options()
     g = dcslam.datasets.read_isam2d(ISAM_FILE).slam_config()
-    assert g.observation == "point" and g.association == "known"
+    assert g.observation == "point" and g.association == "known" and g.join_association == "known"
+    assert tuple(g.sensor_offset) == (0.0, 0.0, 0.0)
+    assert dcslam.SlamConfig._from_core(dcslam._core.datasets.isam2d_slam_config()) == g
+    assert dcslam.datasets.read_isam2d(ISAM_FILE).slam_config(local_map_features=9).local_map_features == 9
 
 
 def test_every_source_gives_the_one_step_type(raw_vp, isam):

@@ -19,10 +19,6 @@
 
 namespace dcslam {
 
-// Work of one PairingModel::covariance() block in units of eight multiply-adds, as the
-// resumable searches count it (a map join's is a few 2x3 by 3x2 products).
-inline constexpr std::int64_t kPairingCovarianceUnits = 16;
-
 // Every setting of RJC, with the defaults D&C's joins run with (SlamConfig's rjc_* fields set
 // b, p_good and p_fail; JoinOptions holds these settings and hands them down as they are).
 struct RjcOptions {
@@ -123,14 +119,13 @@ int accept_sequentially(const std::vector<Pairing>& order, int seed_size,
 int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel& model,
                                 double confidence, double* joint_distance_sq = nullptr);
 
-// accept_sequentially() as resumable work: step() tests one pairing (O(k^2)). The referenced
-// arguments must outlive it.
-class SequentialAcceptance {
+// accept_sequentially() as resumable work (ResumableWork): a step tests one pairing (O(k^2)).
+// The referenced arguments must outlive it.
+class SequentialAcceptance : public ResumableWork<SequentialAcceptance> {
  public:
   SequentialAcceptance(const std::vector<Pairing>& order, int seed_size,
                        std::vector<int>& feature_of, const PairingModel& model, double gate);
-  // Returns the work in units of eight multiply-adds.
-  std::int64_t step();
+  std::int64_t step(std::int64_t budget);
   bool done() const { return next_ == static_cast<Eigen::Index>(order_.size()); }
   std::int64_t remaining_work() const;
   int removed() const { return removed_; }
@@ -163,19 +158,18 @@ class SequentialAcceptance {
   int removed_ = 0;
 };
 
-// enforce_joint_compatibility() as resumable work: S's blocks a pairing at a time, its
-// Cholesky factor a panel at a time (ResumableCholesky), then, only if the hypothesis fails,
-// S^-1 a block of columns at a time and one removal per step. `panel_width` and `work_unit`
-// (multiply-adds, for the inverse's blocks) set the panels and blocks from the sizes alone, so
-// the result never depends on the slicing.
-class JointCompatibilityEnforcement {
+// enforce_joint_compatibility() as resumable work (ResumableWork): S's blocks a pairing at a
+// time, its Cholesky factor a panel at a time (ResumableCholesky), then, only if the hypothesis
+// fails, S^-1 a block of columns at a time and one removal per step. `panel_width` and
+// `work_unit` (multiply-adds, for the inverse's blocks) set the panels and blocks from the
+// sizes alone, so the result never depends on the slicing.
+class JointCompatibilityEnforcement : public ResumableWork<JointCompatibilityEnforcement> {
  public:
   JointCompatibilityEnforcement(std::vector<int>& feature_of, const PairingModel& model,
                                 double confidence, Eigen::Index panel_width,
                                 std::int64_t work_unit);
-  // Returns the work in units of eight multiply-adds. InvalidArgument if S is not positive
-  // definite.
-  std::int64_t step();
+  // InvalidArgument if S is not positive definite.
+  std::int64_t step(std::int64_t budget);
   bool done() const { return stage_ == Stage::Done; }
   std::int64_t remaining_work() const;
   int removed() const { return removed_; }
@@ -189,7 +183,7 @@ class JointCompatibilityEnforcement {
   Eigen::Index panel_width_;
   std::int64_t work_unit_;
   Stage stage_ = Stage::Stack;
-  StackedHypothesis stacked_;  // covariance: S, then L in its lower triangle
+  StackedHypothesis stacked_;  // its covariance S is then factored by cholesky_
   ResumableCholesky cholesky_;
   Eigen::MatrixXd information_;  // S^-1, then the information of the pairings still active
   std::vector<bool> active_;
@@ -199,22 +193,22 @@ class JointCompatibilityEnforcement {
   double distance_sq_ = 0.0;
 };
 
-// rjc() as resumable work, for map joins spread over many steps: advance() does at least one
-// step (a try's seed, one overlap measurement's conditional test, a try's completion, one step
-// of the verification) and stops once `budget` units of eight multiply-adds are spent. Every
-// step is the same computation in the same order as rjc() runs at once, so the result is
-// bitwise identical however the work is sliced, random draws included. The arguments must
-// outlive the search, which is neither copied nor moved (its steps keep references into it).
-class RjcSearch {
+// rjc() as resumable work (ResumableWork), for map joins spread over many steps: a step is a
+// try's seed, one overlap measurement's conditional test, a try's completion or one step of the
+// verification. Every step is the same computation in the same order as rjc() runs at once, so
+// the result is bitwise identical however the work is sliced, random draws included. The
+// arguments must outlive the search, which is neither copied nor moved (its steps keep
+// references into it).
+class RjcSearch : public ResumableWork<RjcSearch> {
  public:
   RjcSearch(const CandidateLists& candidates, const PairingModel& model,
             const RjcOptions& options = RjcOptions());
   RjcSearch(const RjcSearch&) = delete;
   RjcSearch& operator=(const RjcSearch&) = delete;
 
-  std::int64_t advance(std::int64_t budget);
+  std::int64_t step(std::int64_t budget);
   bool done() const { return stage_ == Stage::Done; }
-  // Work left in the units of advance(): an estimate until the tries are over.
+  // An estimate until the tries are over.
   std::int64_t remaining_work() const;
   // Valid once done().
   const RjcResult& result() const { return result_; }

@@ -11,24 +11,28 @@
 
 #include <Eigen/Core>
 
+#include "dcslam/core/resumable_work.hpp"
+
 namespace dcslam {
 
-class ResumableCholesky {
+class ResumableCholesky : public ResumableWork<ResumableCholesky> {
  public:
   ResumableCholesky() = default;
-  ResumableCholesky(Eigen::Index size, Eigen::Index panel_width);
+  // Factors `S`; only its lower triangle is read.
+  ResumableCholesky(Eigen::MatrixXd S, Eigen::Index panel_width);
 
-  // The next panel of `S` (the same matrix, sized `size`, every call). Returns its work in
-  // units of eight multiply-adds, or -1 if the panel's diagonal block is not positive definite
-  // (S is then left partly factored and the factorisation is over).
-  std::int64_t step(Eigen::MatrixXd& S);
-  bool done() const { return next_panel_ >= size_ || failed_; }
+  // The next panel. If its diagonal block is not positive definite the factorisation is over
+  // and failed(), S left partly factored.
+  std::int64_t step(std::int64_t budget);
+  bool done() const { return next_panel_ >= matrix_.rows() || failed_; }
   bool failed() const { return failed_; }
-  // Work left in the units of step() (the trailing updates dominate: about size^3 / 3).
+  // The trailing updates dominate: about size^3 / 3 multiply-adds.
   std::int64_t remaining_work() const;
+  // S while it is factored; L in its lower triangle once done() and not failed().
+  const Eigen::MatrixXd& matrix() const { return matrix_; }
 
  private:
-  Eigen::Index size_ = 0;
+  Eigen::MatrixXd matrix_;
   Eigen::Index panel_width_ = 1;
   Eigen::Index next_panel_ = 0;  // first column of the next panel
   bool failed_ = false;

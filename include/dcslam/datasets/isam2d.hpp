@@ -12,6 +12,8 @@
 
 #include <Eigen/Core>
 
+#include "dcslam/core/config.hpp"
+
 namespace dcslam {
 
 // One step per ODOMETRY line (pose i -> pose j), holding the LANDMARK lines seen from pose j.
@@ -36,5 +38,11 @@ struct Isam2dData {
 // ODOMETRY covariance that is not positive semi-definite, a LANDMARK covariance that is not
 // positive definite.
 Isam2dData read_isam2d(const std::string& path);
+
+// The filter options for replaying such a file, the one preset that the Python package
+// (Isam2d.slam_config()) and dcslam_bench both start from: Cartesian point observations from
+// the robot frame, the file's landmark ids as known association, inside local maps and at
+// joins; SlamConfig's defaults elsewhere.
+SlamConfig isam2d_slam_config();
 
 }  // namespace dcslam

@@ -45,14 +45,18 @@ class EkfSlam : public SlamFilter {
   // Removes every tentative feature now. Does nothing when the policy is off ("known" mode or
   // min_sightings = 1). O(n) per removed feature.
   void prune_tentative();
-  // A tentative feature now: its id and the steps (predicts so far) it was first and last seen.
-  struct TentativeFeature {
+  // A tentative feature's sightings in this filter: its id and the steps (predicts so far) it
+  // was first and last seen, which its expiry is judged by. Not dcslam::TentativeFeature
+  // (joining/tentative_features.hpp), which D&C makes of it when it closes the local map: there
+  // the filter's steps mean nothing any more, and what counts is which neighbouring local
+  // maps' joins the feature still waits for.
+  struct TentativeTrack {
     std::int64_t id = 0;
     std::int64_t first_seen_step = 0;
     std::int64_t last_seen_step = 0;
   };
   // The features that are tentative now (empty when the policy is off). O(n).
-  std::vector<TentativeFeature> tentative_features() const;
+  std::vector<TentativeTrack> tentative_features() const;
   // Tentative features first seen at a step <= `step` never expire (prune_tentative() still
   // removes them). D&C: a landmark seen once at the start of a local map may have been seen
   // at the end of the previous one, and only the join of the two can tell.

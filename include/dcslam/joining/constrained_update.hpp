@@ -78,10 +78,9 @@ class ConstrainedUpdate {
   Mat2 rotation_;
   Eigen::Matrix<double, Eigen::Dynamic, 3> J_R_kept_;  // rows of J_R for m2's kept elements
   Eigen::Index next_pair_ = 0;
-  ResumableCholesky cholesky_;  // of constraint_factor_
-  Eigen::MatrixXd gain_;               // P H' (rows: F1, then all of m2), then W in place
-  Eigen::MatrixXd constraint_factor_;  // S, becoming L (S = L L') in its lower triangle
-  Eigen::VectorXd whitened_h_;         // h, then L^-1 h
+  ResumableCholesky cholesky_;  // S = H P H', becoming L (S = L L') in its lower triangle
+  Eigen::MatrixXd gain_;          // P H' (rows: F1, then all of m2), then W in place
+  Eigen::VectorXd whitened_h_;    // h, then L^-1 h
   Eigen::Index next_solve_row_ = 0;
   Eigen::Index next_assemble_row_ = -1;  // -1: assembly not begun
   GaussianMap result_;

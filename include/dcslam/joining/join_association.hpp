@@ -14,6 +14,7 @@
 #include "dcslam/association/jcbb.hpp"
 #include "dcslam/association/rjc.hpp"
 #include "dcslam/core/gaussian_map.hpp"
+#include "dcslam/core/resumable_work.hpp"
 #include "dcslam/core/spatial_hash.hpp"
 #include "dcslam/joining/join_frame.hpp"
 #include "dcslam/joining/join_options.hpp"
@@ -56,23 +57,23 @@ std::vector<std::pair<Eigen::Index, Eigen::Index>> associate_by_id(const Gaussia
 
 JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& options);
 
-// associate_maps() as resumable work, so that an amortized join spreads its association over
-// many steps: advance() does at least one step (the search radii and the spatial hash over
-// m1, the candidates of one m2 feature, one step of RJC's RjcSearch, or a whole JCBB, which
-// only runs on small overlaps, where every RJC try failed (node-bounded) or in "jcbb" mode) and
-// stops once `budget` units of eight multiply-adds are spent. The steps are the computation
-// associate_maps() does, in the same order, so the result is bitwise the same however the work
-// is sliced. `frame` must outlive the associator, which is neither copied nor moved.
-class JoinAssociator {
+// associate_maps() as resumable work (ResumableWork), so that an amortized join spreads its
+// association over many steps: a step is the search radii and the spatial hash over m1, the
+// candidates of one m2 feature, RjcSearch advanced by the step's budget, or a whole JCBB, which
+// only runs on small overlaps, where every RJC try failed (node-bounded) or in "jcbb" mode. The
+// steps are the computation associate_maps() does, in the same order, so the result is bitwise
+// the same however the work is sliced. `frame` must outlive the associator, which is neither
+// copied nor moved.
+class JoinAssociator : public ResumableWork<JoinAssociator> {
  public:
   JoinAssociator(const JoinFrame& frame, const JoinOptions& options);
   JoinAssociator(const JoinAssociator&) = delete;
   JoinAssociator& operator=(const JoinAssociator&) = delete;
 
-  std::int64_t advance(std::int64_t budget);
+  std::int64_t step(std::int64_t budget);
   bool done() const { return stage_ == Stage::Done; }
-  // Work left in the units of advance(). The decision's share is only known once the overlap
-  // is (counted as 0 before, as the join counts the constraints' before association).
+  // The decision's share is only known once the overlap is (counted as 0 before, as the join
+  // counts the constraints' before association).
   std::int64_t remaining_work() const;
   // The overlap (features of m2 with a candidate, at least the pairings to come): counted
   // once the candidates are known, extrapolated over m2 while they are searched, 0 before.
@@ -86,7 +87,7 @@ class JoinAssociator {
   std::int64_t candidates_of_next();
   std::int64_t advance_rjc(std::int64_t budget);
   std::int64_t run_jcbb();
-  void finish(std::vector<int> feature_of);
+  void conclude(std::vector<int> feature_of);
   // JoinOracle: its pairing (per m2 feature, its m1 partner or kStar), the audit of that
   // pairing, and the decision corrected with it.
   std::vector<int> oracle_pairing() const;

@@ -1,7 +1,8 @@
 #pragma once
 // The cost model of a join's resumable work (docs/divide_and_conquer.md, the amortized
 // schedule): what one unit of each phase counts and how many rows, pairs or columns make one.
-// A unit of work is about eight multiply-adds, so budgets mean time across joins of any size.
+// Work is counted in ResumableWork's unit (core/resumable_work.hpp), so budgets mean time across
+// joins of any size.
 // Every size here depends only on the join's sizes and JoinOptions::work_unit, never on how
 // the work is sliced, so the result is bitwise the same however a join is spread over steps.
 // r: matched pairs; k = 2r: constraint rows; ds = 3 + 4r: the variables the constraints

@@ -18,10 +18,10 @@ inline Eigen::Matrix<double, 2, 3> point_jacobian(const Vec2& rotated) {
   return J;
 }
 
-// The next panel of S's factorisation, S the covariance of matched-pair constraints (its
+// The next panel of the factorisation of S, the covariance of matched-pair constraints (its
 // blocks are constraint_covariance()'s); throws std::runtime_error when S is not positive
 // definite.
-std::int64_t factor_constraint_panel(ResumableCholesky& cholesky, Eigen::MatrixXd& S);
+std::int64_t factor_constraint_panel(ResumableCholesky& cholesky);
 
 // Covariance blocks of the stacked map [R1; F1; Q1; R2'; F2'; Q2'] (m2 moved into B1 by
 // x_{B1 R1} ⊕ ·), computed on demand in O(1) each, without building the stacked matrix.

@@ -55,12 +55,12 @@ class JoinRelinearisation {
     Eigen::VectorXd dual;                       // g with s - s0 = P_ss g (H'λ at a KKT point)
     Eigen::MatrixXd covariance;                 // P_ss
     Eigen::Index gathered = 0;                  // columns of s0 and P_ss gathered so far
-    Eigen::MatrixXd gain, factor;               // P_ss H' and S (becoming L) of this step
+    Eigen::MatrixXd gain, factor;               // P_ss H' and S of this step, while built
     Eigen::VectorXd rhs;
     std::vector<Eigen::Matrix<double, 2, 3>> robot_jacobians;  // J_R of each pair, this step
     Eigen::Index next_build = 0;   // pairs done: < r of P_ss H', then r + those of S's rows
     bool factor_built = false;                  // the step's S is built (and being factored)
-    ResumableCholesky cholesky;                 // of factor
+    ResumableCholesky cholesky;                 // of S, once built: L in its lower triangle
     Eigen::ArrayXd tolerance;
     std::vector<Eigen::Index> first_rows;       // rows of R1 and the matched f_i in m1
     std::vector<Eigen::Index> second_rows;      // rows of the matched f_j in m2

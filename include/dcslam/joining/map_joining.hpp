@@ -24,6 +24,7 @@
 #include <Eigen/Core>
 
 #include "dcslam/core/gaussian_map.hpp"
+#include "dcslam/core/resumable_work.hpp"
 #include "dcslam/joining/join_frame.hpp"
 #include "dcslam/joining/join_layout.hpp"
 #include "dcslam/joining/join_options.hpp"
@@ -36,7 +37,7 @@ class ConstrainedUpdate;  // constrained_update.hpp
 class JoinAssociator;     // join_association.hpp
 class JoinFill;           // join_fill.hpp
 
-class MapJoin {
+class MapJoin : public ResumableWork<MapJoin> {
  public:
   using Pairs = std::vector<std::pair<Eigen::Index, Eigen::Index>>;
 
@@ -52,13 +53,12 @@ class MapJoin {
   MapJoin(const MapJoin&) = delete;
   MapJoin& operator=(const MapJoin&) = delete;
 
-  // Does at least one unit of work (if not done) and stops once `budget` work units are
-  // spent. Returns the work done.
-  std::int64_t advance(std::int64_t budget);
-  void finish();
+  // ResumableWork: a step is one unit of the current phase, or the association advanced by
+  // `budget`.
+  std::int64_t step(std::int64_t budget);
   bool done() const { return phase_ == Phase::Done; }
-  // Work left, in the units of advance(); exact once the constraints are linearised, an
-  // estimate before (an upper bound on the re-linearisation steps).
+  // Exact once the constraints are linearised, an estimate before (an upper bound on the
+  // re-linearisation steps).
   std::int64_t remaining_work() const;
 
   // The joined map; valid once done(). Leaves the join empty.
@@ -74,7 +74,7 @@ class MapJoin {
 
  private:
   enum class Phase { Associate, Relinearise, Constrain, Factor, Solve, Assemble, Fill, Done };
-  // The association a step of JoinAssociator at a time (at once by id for "known"); once the
+  // The association, JoinAssociator advanced by `budget` (at once by id for "known"); once the
   // pairs are known, the result's layout, and the phase moves on. Returns the work.
   std::int64_t associate_next(std::int64_t budget);
   void finish_association();

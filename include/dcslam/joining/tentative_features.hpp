@@ -16,7 +16,9 @@ class MapJoin;
 
 // A feature of a closed map seen only once. Its landmark may also have been seen once by the
 // local map before (`needs_previous`: first seen in the local map's first tentative_window
-// steps) or after (`needs_next`: still unexpired when the map closed).
+// steps) or after (`needs_next`: still unexpired when the map closed). Made from the local
+// filter's EkfSlam::TentativeTrack when the map closes; a separate type because a closed map
+// is judged by the joins it waits for, not by the steps of a filter that has moved on.
 struct TentativeFeature {
   std::int64_t id = 0;
   std::int64_t leaf = 0;  // the local map that saw it (0: the first)
