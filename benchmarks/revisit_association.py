@@ -38,9 +38,12 @@ def run_one(filter_name: str, sim, config: dcslam.SlamConfig):
 
 
 def parse_overrides(items):
+    """``["field=value", ...]`` -> SlamConfig overrides (values read as JSON, else as strings)."""
     overrides = {}
     for item in items:
-        name, _, value = item.partition("=")
+        name, separator, value = item.partition("=")
+        if not separator:
+            raise SystemExit(f"an override must read FIELD=VALUE, got {item!r}")
         try:
             overrides[name] = json.loads(value)
         except json.JSONDecodeError:

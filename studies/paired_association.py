@@ -21,31 +21,16 @@ import sys
 import numpy as np
 
 import dcslam
-from dcslam import evaluation
+
+# The revisit benchmark's runner and its overrides, so that both score a run the same way.
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
+from revisit_association import parse_overrides, run_one  # noqa: E402
 
 DEFAULT_SCENES = "small_loop_laps,loop_both_ways,lawn_overlap"
 
 
-def parse_overrides(items: list[str]) -> dict:
-    overrides = {}
-    for item in items:
-        name, separator, value = item.partition("=")
-        if not separator:
-            sys.exit(f"paired_association.py: an override must read FIELD=VALUE, got {item!r}")
-        try:
-            overrides[name] = json.loads(value)
-        except json.JSONDecodeError:
-            overrides[name] = value  # an option string, e.g. join_association=jcbb
-    return overrides
-
-
-def score(filter_name: str, sim, config: dcslam.SlamConfig) -> evaluation.AssociationScores:
-    slam = dcslam.DCSlam(config) if filter_name == "dc" else dcslam.EkfSlam(config)
-    returned = []
-    for step in sim.steps:
-        slam.predict(step.u, step.Q)
-        returned.append(slam.update(step.z, step.R))
-    return evaluation.evaluate_run(slam, slam.estimate(), returned, sim).association
+def standard_error(d: np.ndarray) -> float:
+    return float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else float("nan")
 
 
 def main() -> None:
@@ -71,18 +56,17 @@ def main() -> None:
         pairs = []
         for seed in range(args.seeds):
             sim = dcslam.revisit_scenario(name, seed)
-            a = score(args.filter, sim, dataclasses.replace(config_a, seed=seed))
-            b = score(args.filter, sim, dataclasses.replace(config_b, seed=seed))
+            a = run_one(args.filter, sim, dataclasses.replace(config_a, seed=seed))[0].association
+            b = run_one(args.filter, sim, dataclasses.replace(config_b, seed=seed))[0].association
             pairs.append((a, b))
             rows.append(dict(scenario=name, seed=seed, a=dataclasses.asdict(a), b=dataclasses.asdict(b)))
         recall = np.array([[a.pairwise_recall, b.pairwise_recall] for a, b in pairs])
         precision = np.array([[a.pairwise_precision, b.pairwise_precision] for a, b in pairs])
         d_recall, d_precision = recall[:, 1] - recall[:, 0], precision[:, 1] - precision[:, 0]
-        se = lambda d: d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else float("nan")  # noqa: E731
         print(f"{name:16s} {recall[:, 0].mean():6.3f} {recall[:, 1].mean():6.3f} {d_recall.mean():+7.3f} "
-              f"{se(d_recall):6.3f} {int((d_recall > 0).sum()):3d} {int((d_recall < 0).sum()):4d} "
+              f"{standard_error(d_recall):6.3f} {int((d_recall > 0).sum()):3d} {int((d_recall < 0).sum()):4d} "
               f"{precision[:, 0].mean():6.3f} {precision[:, 1].mean():6.3f} {d_precision.mean():+8.4f} "
-              f"{se(d_precision):7.4f}", flush=True)
+              f"{standard_error(d_precision):7.4f}", flush=True)
     if args.json:
         pathlib.Path(args.json).write_text(json.dumps(
             dict(filter=args.filter, a=dataclasses.asdict(config_a), b=dataclasses.asdict(config_b), runs=rows),
