@@ -52,11 +52,14 @@ def main() -> None:
     parser.add_argument("--radius", type=float, default=1.0, help="a close pair is closer than this (m)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--list", action="store_true", help="print every D&C close pair")
+    parser.add_argument("--final-merge-confidence", type=float, default=None,
+                        help="SlamConfig.final_merge_confidence of both runs (default: unset)")
     args = parser.parse_args()
 
     vp = victoria_park()
-    config = vp.slam_config(seed=args.seed)
-    gate = float(chi2.ppf(config.gate_confidence, 2))
+    config = vp.slam_config(seed=args.seed, final_merge_confidence=args.final_merge_confidence)
+    merge_confidence = config.final_merge_confidence or config.gate_confidence
+    gate = float(chi2.ppf(merge_confidence, 2))
     estimates = {}
     for name, cls in (("EKF", dcslam.EkfSlam), ("D&C", dcslam.DCSlam)):
         slam = cls(config)
