@@ -40,6 +40,8 @@ py::dict join_event_dict(const JoinEvent& event) {
   out["features_joined"] = event.report.features_joined;
   out["overlap"] = event.report.overlap;
   out["pairings"] = event.report.pairings;
+  out["deferred_pairings"] = event.report.deferred_pairings;
+  out["alternatives_taken"] = event.report.alternatives_taken;
   out["tries"] = event.report.tries;
   out["iterations"] = event.report.iterations;
   out["seconds"] = event.report.seconds_total;

@@ -63,6 +63,8 @@ void SlamConfig::validate() const {
               (final_merge_confidence ? number_text(*final_merge_confidence) : std::string()));
   require(tentative_window >= 1,
           "tentative_window: must be >= 1, got " + std::to_string(tentative_window));
+  require(weak_join_pairings >= 0,
+          "weak_join_pairings: must be >= 0, got " + std::to_string(weak_join_pairings));
   require(local_map_features >= 1,
           "local_map_features: must be >= 1, got " + std::to_string(local_map_features));
   require(rjc_b >= 1, "rjc_b: must be >= 1, got " + std::to_string(rjc_b));

@@ -165,6 +165,7 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod(c.merge_radius);
   out.pod<std::uint8_t>(c.final_merge_confidence.has_value());
   out.pod(c.final_merge_confidence.value_or(0.0));
+  out.pod(c.weak_join_pairings);
   out.pod(c.local_map_features);
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(c.join_association));
   out.pod(c.rjc_b);
@@ -200,6 +201,7 @@ SlamConfig load_config(Reader& in) {
   const bool has_final_merge_confidence = in.flag();
   const auto final_merge_confidence = in.pod<double>();
   if (has_final_merge_confidence) c.final_merge_confidence = final_merge_confidence;
+  c.weak_join_pairings = in.pod<int>();
   c.local_map_features = in.pod<int>();
   c.join_association = enum_value<JoinAssociation>(in, 3);
   c.rjc_b = in.pod<int>();
@@ -414,6 +416,18 @@ JoinPairingRecord load_pairing(Reader& in) {
   return r;
 }
 
+void save_join_ids(Writer& out, const JoinIds& ids) {
+  save_pairs(out, ids.merged);
+  out.ids(ids.dropped);
+}
+
+JoinIds load_join_ids(Reader& in) {
+  JoinIds ids;
+  ids.merged = load_pairs(in);
+  ids.dropped = in.ids();
+  return ids;
+}
+
 void save_event(Writer& out, const JoinEvent& e) {
   out.pod(e.index);
   out.pod(e.leaves);
@@ -427,6 +441,8 @@ void save_event(Writer& out, const JoinEvent& e) {
   out.pod(r.pairings);
   out.pod(r.tries);
   out.pod(r.dropped_tentative);
+  out.pod(r.deferred_pairings);
+  out.pod(r.alternatives_taken);
   out.pod(r.iterations);
   out.pod(r.seconds_association);
   out.pod(r.seconds_total);
@@ -448,6 +464,8 @@ JoinEvent load_event(Reader& in) {
   r.pairings = in.pod<int>();
   r.tries = in.pod<int>();
   r.dropped_tentative = in.pod<int>();
+  r.deferred_pairings = in.pod<int>();
+  r.alternatives_taken = in.pod<int>();
   r.iterations = in.pod<int>();
   r.seconds_association = in.pod<double>();
   r.seconds_total = in.pod<double>();
@@ -633,6 +651,13 @@ struct CheckpointAccess {
     if (node.map) {
       save_map(out, *node.map);
       save_tentative(out, node.tentative);
+      out.pod<std::uint8_t>(node.alternative != nullptr);
+      if (node.alternative) {
+        save_join_ids(out, node.alternative->made_ids);
+        save_map(out, *node.alternative->map);
+        save_tentative(out, node.alternative->tentative);
+        save_join_ids(out, node.alternative->ids);
+      }
       return;
     }
     const DCSlam::JoinTask& task = *node.task;
@@ -655,6 +680,14 @@ struct CheckpointAccess {
     if (in.flag()) {
       node->map = std::make_shared<const GaussianMap>(load_map(in));
       node->tentative = load_tentative(in);
+      if (in.flag()) {
+        auto alternative = std::make_shared<JoinAlternative>();
+        alternative->made_ids = load_join_ids(in);
+        alternative->map = std::make_shared<const GaussianMap>(load_map(in));
+        alternative->tentative = load_tentative(in);
+        alternative->ids = load_join_ids(in);
+        node->alternative = std::move(alternative);
+      }
       return node;
     }
     auto task = std::make_shared<DCSlam::JoinTask>();

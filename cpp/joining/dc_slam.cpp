@@ -19,6 +19,12 @@ namespace dcslam {
 
 namespace {
 
+// Joins of fewer local maps never keep an alternative (SlamConfig::weak_join_pairings): with
+// the truth at every larger join D&C's recall on the simulator's revisit scenes is what the
+// truth at every join gives, so the joins of two to four local maps do not decide a run
+// (docs/data_association.md, "Which joins decide"), and there every join would be weak.
+constexpr int kMinWeakJoinLeaves = 8;
+
 // Where the re-linearised tree stops: no mean moved by more than this (m or rad) in a pass.
 constexpr double kRelinearisationTolerance = 1e-9;
 
@@ -444,9 +450,7 @@ void DCSlam::run_amortized_budget() {
 std::int64_t DCSlam::work_on(JoinTask& task, std::int64_t budget) {
   try {
     if (!task.join) {
-      task.join = make_join(NodeMap{task.left->map, task.left->tentative},
-                            NodeMap{task.right->map, task.right->tentative}, *task.left,
-                            *task.right, task.index);
+      task.join = make_join(task.left->tree_map(), task.right->tree_map(), *task.left, *task.right, task.index);
     }
     task.budgets.push_back(budget);
     const std::int64_t spent = task.join->advance(budget);
@@ -511,15 +515,23 @@ void DCSlam::raise_join_failure(std::unique_lock<std::mutex>& lock) {
   throw InvalidArgument(message);
 }
 
-std::unique_ptr<MapJoin> DCSlam::make_join(const NodeMap& first, const NodeMap& second,
-                                           const Node& left, const Node& right,
-                                           int index) const {
+std::unique_ptr<DecidingJoin> DCSlam::make_join(const TreeMap& first, const TreeMap& second, const Node& left,
+                                                const Node& right, int index) const {
   const std::int64_t first_leaf = left.first_leaf;
   const std::int64_t last_leaf = right.first_leaf + right.leaves - 1;
-  return std::make_unique<MapJoin>(
-      first.map, second.map, join_options(index, left.robot_id),
-      last_chance(*first.map, first.tentative, first_leaf, last_leaf),
-      last_chance(*second.map, second.tentative, first_leaf, last_leaf));
+  auto make = [options = join_options(index, left.robot_id), first_leaf, last_leaf](
+                  const TreeMap& a, const TreeMap& b, std::shared_ptr<const MapJoin::Pairs> fixed_pairs) {
+    JoinOptions join_options = options;
+    join_options.fixed_pairs = std::move(fixed_pairs);
+    return std::make_unique<MapJoin>(a.map, b.map, std::move(join_options),
+                                     last_chance(*a.map, a.tentative, first_leaf, last_leaf),
+                                     last_chance(*b.map, b.tentative, first_leaf, last_leaf));
+  };
+  // Pairs by the caller's ids are not a decision to revisit.
+  const bool may_be_weak = left.leaves + right.leaves >= kMinWeakJoinLeaves &&
+                           config_.join_association != JoinAssociation::Known;
+  return std::make_unique<DecidingJoin>(first, second, std::move(make),
+                                        may_be_weak ? config_.weak_join_pairings : 0);
 }
 
 namespace {
@@ -535,12 +547,12 @@ void merge_seen_with(SeenWith& seen_with, std::int64_t from, std::int64_t to) {
 }
 
 // What a join did to ids: each merged one now names the feature it joined; dropped ones, -1.
-void record_merges(const MapJoin& join, IdAliases& aliases, SeenWith& seen_with) {
-  for (const auto& [from, to] : join.merged_ids()) {
+void record_ids(const JoinIds& ids, IdAliases& aliases, SeenWith& seen_with) {
+  for (const auto& [from, to] : ids.merged) {
     add_alias(aliases, from, to);
     merge_seen_with(seen_with, from, to);
   }
-  for (std::int64_t id : join.dropped_ids()) {
+  for (std::int64_t id : ids.dropped) {
     add_alias(aliases, id, -1);
     seen_with.erase(id);
   }
@@ -549,19 +561,22 @@ void record_merges(const MapJoin& join, IdAliases& aliases, SeenWith& seen_with)
 }  // namespace
 
 void DCSlam::complete(JoinTask& task) {
-  auto map = std::make_shared<const GaussianMap>(task.join->take_result());
-  std::vector<TentativeFeature> tentative =
-      joined_tentative(task.left->tentative, task.right->tentative, *task.join,
-                       task.left->first_leaf, task.right->first_leaf + task.right->leaves - 1);
+  const std::int64_t first_leaf = task.left->first_leaf;
+  const std::int64_t last_leaf = task.right->first_leaf + task.right->leaves - 1;
+  const JoinReport report = task.join->report();
+  DecidedJoin decided = task.join->take_result([&](const TreeMap& first, const TreeMap& second, const MapJoin& join) {
+    return joined_tentative(first.tentative, second.tentative, join, first_leaf, last_leaf);
+  });
   std::lock_guard<std::mutex> lock(mutex_);
   JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
-  event.report = task.join->report();
-  event.pairing = task.join->pairing_record();
+  event.report = report;
+  event.pairing = task.join->join().pairing_record();
   event.step_finished = steps_;
-  record_merges(*task.join, merged_into_, seen_with_);
+  for (const JoinIds& ids : decided.settled) record_ids(ids, merged_into_, seen_with_);
   const std::shared_ptr<Node> result = task.result.lock();
-  result->tentative = std::move(tentative);
-  result->map = std::move(map);
+  result->tentative = std::move(decided.tentative);
+  result->map = std::move(decided.map);
+  result->alternative = std::move(decided.alternative);
   result->expected_features = result->map->num_features();
   result->expected_poses = result->map->num_poses();
   result->task.reset();
@@ -631,7 +646,7 @@ std::shared_ptr<DCSlam::FrozenNode> DCSlam::freeze(const std::shared_ptr<Node>& 
   auto frozen = std::make_shared<FrozenNode>();
   frozen->node = node;
   if (node->map) {
-    frozen->map = NodeMap{node->map, node->tentative};
+    frozen->map = node->tree_map();
   } else {
     frozen->left = freeze(node->task->left);
     frozen->right = freeze(node->task->right);
@@ -641,14 +656,14 @@ std::shared_ptr<DCSlam::FrozenNode> DCSlam::freeze(const std::shared_ptr<Node>& 
   return frozen;
 }
 
-DCSlam::NodeMap DCSlam::materialize(const FrozenNode& node, IdAliases& aliases, SeenWith& seen_with) const {
+TreeMap DCSlam::materialize(const FrozenNode& node, IdAliases& aliases, SeenWith& seen_with) const {
   if (node.map.map) return node.map;
   // Same inputs and options as the real join: the same result, computed on the side.
-  NodeMap first = materialize(*node.left, aliases, seen_with);
-  NodeMap second = materialize(*node.right, aliases, seen_with);
+  const TreeMap first = materialize(*node.left, aliases, seen_with);
+  const TreeMap second = materialize(*node.right, aliases, seen_with);
   const Node& left = *node.left->node;
   const Node& right = *node.right->node;
-  const std::unique_ptr<MapJoin> join = make_join(first, second, left, right, node.index);
+  const std::unique_ptr<DecidingJoin> join = make_join(first, second, left, right, node.index);
   try {
     join->finish();
   } catch (const std::exception& error) {
@@ -657,10 +672,12 @@ DCSlam::NodeMap DCSlam::materialize(const FrozenNode& node, IdAliases& aliases, 
                           std::to_string(node.step_created) + ") fails: " + error.what() +
                           "; the filter is unchanged until it runs that join (finish_joins() runs it now)");
   }
-  record_merges(*join, aliases, seen_with);
-  return NodeMap{std::make_shared<const GaussianMap>(join->take_result()),
-                 joined_tentative(first.tentative, second.tentative, *join, left.first_leaf,
-                                  right.first_leaf + right.leaves - 1)};
+  const std::int64_t last_leaf = right.first_leaf + right.leaves - 1;
+  DecidedJoin decided = join->take_result([&](const TreeMap& a, const TreeMap& b, const MapJoin& made) {
+    return joined_tentative(a.tentative, b.tentative, made, left.first_leaf, last_leaf);
+  });
+  for (const JoinIds& ids : decided.settled) record_ids(ids, aliases, seen_with);
+  return decided.tree_map();
 }
 
 void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& seen_with,
@@ -707,26 +724,47 @@ Estimate DCSlam::estimate() const {
     merged = merged_into_;
   }
   auto joined = std::make_shared<GaussianMap>(*compact_copy(local_->map()));
+  // The open local map's features seen once, for the fold's weak joins.
+  std::vector<TentativeFeature> joined_seen_once;
+  for (const auto& track : local_->tentative_features()) {
+    joined_seen_once.push_back(TentativeFeature{track.id, closed_local_maps_, false, false});
+  }
+  std::shared_ptr<const JoinAlternative> joined_alternative;
   record_seen_with(*local_, seen_with);
   // Join everything on the stack, top first, as Algorithm 2 does at the end of the run.
   // Tentative features all stay, as in the EKF's estimate: the maps after them may not have
-  // had their chance to confirm them yet (and resolve() still points at them).
+  // had their chance to confirm them yet (and resolve() still points at them). A weak join of
+  // the fold is decided by the next one; the last one's result is final.
   IdAliases aliases;
   std::vector<JoinPairingRecord> fold;
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     const int index = -1 - static_cast<int>(it - stack.rbegin());
-    NodeMap first = materialize(**it, aliases, seen_with);
-    MapJoin join(first.map, std::move(joined), join_options(index, (*it)->node->robot_id));
+    auto make = [options = join_options(index, (*it)->node->robot_id)](
+                    const TreeMap& first, const TreeMap& second, std::shared_ptr<const MapJoin::Pairs> fixed_pairs) {
+      JoinOptions join_options = options;
+      join_options.fixed_pairs = std::move(fixed_pairs);
+      return std::make_unique<MapJoin>(first.map, second.map, std::move(join_options));
+    };
+    const bool last = std::next(it) == stack.rend();
+    DecidingJoin join(materialize(**it, aliases, seen_with),
+                      TreeMap{std::move(joined), std::move(joined_seen_once), std::move(joined_alternative)},
+                      std::move(make),
+                      last || config_.join_association == JoinAssociation::Known ? 0 : config_.weak_join_pairings);
     try {
-      join.finish();  // releases its inputs: at most the inputs and the result are alive
+      join.finish();  // at most the inputs and the result are alive
     } catch (const std::exception& error) {
       throw InvalidArgument("DCSlam::estimate: the join of the stack's map " +
                             std::to_string(stack.rend() - it - 1) + " with the maps after it failed: " + error.what() +
                             "; the filter is unchanged");
     }
-    record_merges(join, aliases, seen_with);
-    fold.push_back(join.pairing_record());
-    joined = std::make_shared<GaussianMap>(join.take_result());
+    fold.push_back(join.join().pairing_record());
+    DecidedJoin decided = join.take_result([](const TreeMap& first, const TreeMap& second, const MapJoin& made) {
+      return unmatched_tentative(first.tentative, second.tentative, made);
+    });
+    for (const JoinIds& ids : decided.settled) record_ids(ids, aliases, seen_with);
+    joined = std::move(decided.map);
+    joined_seen_once = std::move(decided.tentative);
+    joined_alternative = std::move(decided.alternative);
   }
   // The duplicates the joins left, pairs no join could decide (docs/data_association.md).
   merge_duplicates(*joined, aliases, seen_with, merged);
@@ -797,6 +835,14 @@ const RunStats& DCSlam::stats() const {
   stats_.counters["joins_created"] = static_cast<double>(events_.size());
   stats_.counters["joins_finished"] = static_cast<double>(finished);
   stats_.counters["stack_depth"] = static_cast<double>(stack_.size());
+  // The real joins' weak decisions (join_alternatives.hpp); the final fold's are not counted.
+  double weak_joins = 0.0, alternatives_taken = 0.0;
+  for (const JoinEvent& event : events_) {
+    weak_joins += event.report.deferred_pairings > 0 ? 1.0 : 0.0;
+    alternatives_taken += event.report.alternatives_taken;
+  }
+  stats_.counters["weak_joins"] = weak_joins;
+  stats_.counters["alternatives_taken"] = alternatives_taken;
   if (config_.tree_relinearisation > 0) {
     stats_.counters["relinearisation_passes"] = relinearisation_.passes;
     stats_.counters["relinearisation_last_step"] = relinearisation_.last_step;

@@ -208,7 +208,9 @@ std::int64_t MapJoin::associate_next(std::int64_t budget) {
   const GaussianMap& m1 = *first_;
   const GaussianMap& m2 = *second_;
   std::int64_t spent = 0;
-  if (options_.association == JoinAssociation::Known) {
+  if (options_.fixed_pairs) {
+    pairs_ = *options_.fixed_pairs;
+  } else if (options_.association == JoinAssociation::Known) {
     pairs_ = associate_by_id(m1, m2);
     report_.overlap = static_cast<int>(pairs_.size());
   } else {

@@ -54,4 +54,21 @@ std::vector<TentativeFeature> joined_tentative(const std::vector<TentativeFeatur
   return kept;
 }
 
+std::vector<TentativeFeature> unmatched_tentative(const std::vector<TentativeFeature>& first,
+                                                  const std::vector<TentativeFeature>& second,
+                                                  const MapJoin& join) {
+  std::unordered_set<std::int64_t> matched;
+  for (const auto& [from, to] : join.merged_ids()) {
+    matched.insert(from);
+    matched.insert(to);
+  }
+  std::vector<TentativeFeature> kept;
+  for (const auto* side : {&first, &second}) {
+    for (const TentativeFeature& feature : *side) {
+      if (matched.count(feature.id) == 0) kept.push_back(feature);
+    }
+  }
+  return kept;
+}
+
 }  // namespace dcslam

@@ -86,6 +86,15 @@ class SlamConfig:
             bends no later decision; on the simulator's revisit scenes 0.999 raises D&C's
             pairwise recall by 0.01-0.02 at a precision cost of about 0.001
             (docs/data_association.md, "Duplicates merged in D&C's estimate").
+        weak_join_pairings: D&C only: a join of 8 local maps or more that makes at most this
+            many pairs (>= 0) is weak: it also builds its result without its pairs that
+            have a feature seen once, and the next join (or the final fold of
+            :meth:`~dcslam.DCSlam.estimate`) joins whichever version lets it make more pairs
+            in all, its own and the weak join's. One wrong pair between features seen once
+            at such a join bends both maps, and the next join then duplicates a whole lap's
+            landmarks. 30 (default) by measurement on the simulator's revisit scenes; 0:
+            off, every join's pairs are final when made (docs/data_association.md, "Weak
+            joins decided by the next join").
         local_map_features: D&C closes a local map when it holds this many features.
         join_association: association at D&C joins: ``"rjc"``, ``"jcbb"`` or ``"known"``.
         rjc_b, rjc_p_good, rjc_p_fail: RJC (Paz et al. 2007, Alg. 3) parameters.
@@ -128,6 +137,7 @@ class SlamConfig:
     tentative_window: int = 5
     merge_radius: float = 2.0
     final_merge_confidence: Optional[float] = None
+    weak_join_pairings: int = 30
     local_map_features: int = 30
     join_association: JoinAssociation = "rjc"
     rjc_b: int = 4

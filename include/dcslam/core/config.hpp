@@ -49,6 +49,12 @@ struct SlamConfig {
   // same confidence in the local maps' merges does not (docs/data_association.md,
   // "Duplicates merged in D&C's estimate"). The EKF has no final merge and ignores it.
   std::optional<double> final_merge_confidence;
+  // D&C: a join of 8 local maps or more that makes at most this many pairs is weak: it also
+  // builds its result without its pairs that have a feature seen once, and the next join
+  // (or estimate()'s fold) joins whichever version lets it make more pairs in all
+  // (docs/data_association.md, "Weak joins decided by the next join"). 0: off, every join's
+  // pairs are final when made.
+  int weak_join_pairings = 30;
   int local_map_features = 30;
   JoinAssociation join_association = JoinAssociation::Rjc;
   int rjc_b = 4;

@@ -29,6 +29,7 @@
 
 #include "dcslam/core/config.hpp"
 #include "dcslam/estimation/ekf_slam.hpp"
+#include "dcslam/joining/join_alternatives.hpp"
 #include "dcslam/joining/join_tree.hpp"
 #include "dcslam/joining/map_joining.hpp"
 #include "dcslam/core/slam_filter.hpp"
@@ -105,6 +106,9 @@ class DCSlam : public SlamFilter {
     std::int64_t robot_id = 0;
     std::shared_ptr<const GaussianMap> map;  // set once complete
     std::vector<TentativeFeature> tentative;  // set with `map`
+    // Set with `map` when its join was weak, until the next join decides (join_alternatives.hpp).
+    std::shared_ptr<const JoinAlternative> alternative;
+    TreeMap tree_map() const { return TreeMap{map, tentative, alternative}; }
     std::shared_ptr<JoinTask> task;          // set while pending
   };
   struct JoinTask {
@@ -113,7 +117,7 @@ class DCSlam : public SlamFilter {
     // The node this join completes. Weak: the node owns the task while the join is pending,
     // and a strong link back would keep joins still queued at destruction alive forever.
     std::weak_ptr<Node> result;
-    std::unique_ptr<MapJoin> join;
+    std::unique_ptr<DecidingJoin> join;
     std::int64_t deadline_step = 0;
     // The budget of every advance() so far: a checkpoint redoes them on load.
     std::vector<std::int64_t> budgets;
@@ -176,19 +180,17 @@ class DCSlam : public SlamFilter {
   void worker_loop();
   // Options of join `index`, whose first map's robot has pose id `first_robot_id`.
   JoinOptions join_options(int index, std::int64_t first_robot_id) const;
-  struct NodeMap {
-    std::shared_ptr<const GaussianMap> map;
-    std::vector<TentativeFeature> tentative;
-  };
-  // The join of two adjacent nodes, with the tentative features whose last chance it is.
-  std::unique_ptr<MapJoin> make_join(const NodeMap& first, const NodeMap& second,
-                                     const Node& left, const Node& right, int index) const;
+  // The join of two adjacent nodes' maps (or of versions of them), with the tentative features
+  // whose last chance it is; weak, it keeps an alternative when its result spans
+  // kMinWeakJoinLeaves local maps or more.
+  std::unique_ptr<DecidingJoin> make_join(const TreeMap& first, const TreeMap& second, const Node& left,
+                                          const Node& right, int index) const;
   // A node as it stood when estimate() began: its map if complete, else the inputs of its
   // pending join. A join the worker completes during the estimate must not be seen: its
   // merges would be missing from the leaf sets estimate() copied at the start.
   struct FrozenNode {
     std::shared_ptr<Node> node;  // for its fixed fields (leaves, robot id)
-    NodeMap map;                 // map.map null while pending
+    TreeMap map;                 // map.map null while pending
     std::shared_ptr<FrozenNode> left, right;
     int index = 0;
     std::int64_t step_created = 0;  // of the pending join
@@ -196,7 +198,7 @@ class DCSlam : public SlamFilter {
   std::shared_ptr<FrozenNode> freeze(const std::shared_ptr<Node>& node) const;  // mutex_ held
   // The map of a frozen node, computing pending joins on copies (never touching the real
   // tasks); the merges those joins make are added to `aliases` and `seen_with`.
-  NodeMap materialize(const FrozenNode& node, IdAliases& aliases, SeenWith& seen_with) const;
+  TreeMap materialize(const FrozenNode& node, IdAliases& aliases, SeenWith& seen_with) const;
   // Merges the duplicates the joins left in the estimate's `map` as the EKF merges its own
   // (never seen in one scan, each the other's only compatible feature within merge_radius),
   // the test with join_feature_sigma as at a join. The ids of `seen_with`'s lists follow the

@@ -6,6 +6,8 @@
 #include <limits>
 #include <memory>
 #include <unordered_map>
+#include <utility>
+#include <vector>
 
 #include <Eigen/Core>
 
@@ -71,6 +73,9 @@ struct JoinOptions {
   bool keep_first_robot = false;
   std::int64_t first_robot_id = -1;
   std::shared_ptr<const JoinOracle> oracle;  // research only (JoinOracle); null in real runs
+  // Set: these pairs (i in m1, j in m2) are imposed and no association runs (a weak join's
+  // alternative: the pairs its association chose less the deferred ones, join_alternatives.hpp).
+  std::shared_ptr<const std::vector<std::pair<Eigen::Index, Eigen::Index>>> fixed_pairs;
 };
 
 }  // namespace dcslam

@@ -44,6 +44,10 @@ struct JoinReport {
   int pairings = 0;  // matched pairs imposed as constraints
   int tries = 0;     // RJC hypotheses tried (0 for other modes)
   int dropped_tentative = 0;  // tentative features left unmatched (marginalised)
+  // A weak join's pairs with a feature seen once, left to the next join's decision
+  // (join_alternatives.hpp); 0 when its result is final.
+  int deferred_pairings = 0;
+  int alternatives_taken = 0;  // inputs whose alternative this join took (0-2)
   int iterations = 0;  // linearisation points of the constraint update (0 when r = 0)
   double seconds_association = 0.0;
   double seconds_total = 0.0;  // summed over all the slices the join was run in

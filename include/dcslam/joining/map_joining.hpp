@@ -64,8 +64,11 @@ class MapJoin : public ResumableWork<MapJoin> {
   // The joined map; valid once done(). Leaves the join empty.
   GaussianMap take_result();
   const JoinReport& report() const { return report_; }
+  // The association is done (the pairs are known) and the join is imposing them.
+  bool associated() const { return phase_ != Phase::Associate; }
   // Valid once associated.
   const JoinPairingRecord& pairing_record() const { return pairing_record_; }
+  const Pairs& pairs() const { return pairs_; }
   // (id in m2, id in m1) for every matched pair: the m2 feature merged into the m1 one.
   std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids() const;
   // Ids of the tentative features (of m1, then of m2) marginalised out of the result; known

@@ -39,4 +39,10 @@ std::vector<TentativeFeature> joined_tentative(const std::vector<TentativeFeatur
                                                const MapJoin& join, std::int64_t first_leaf,
                                                std::int64_t last_leaf);
 
+// The tentative features of a join of D&C's final fold, where every one stays: those of both
+// inputs that the join did not match.
+std::vector<TentativeFeature> unmatched_tentative(const std::vector<TentativeFeature>& first,
+                                                  const std::vector<TentativeFeature>& second,
+                                                  const MapJoin& join);
+
 }  // namespace dcslam

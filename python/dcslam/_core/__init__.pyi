@@ -120,6 +120,12 @@ class SlamConfig:
     @unexplained_density.setter
     def unexplained_density(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
         ...
+    @property
+    def weak_join_pairings(self) -> int:
+        ...
+    @weak_join_pairings.setter
+    def weak_join_pairings(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> None:
+        ...
 class SlamFilter:
     """
     The interface shared by EkfSlam and DCSlam (use dcslam.EkfSlam).

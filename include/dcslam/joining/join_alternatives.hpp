@@ -1,0 +1,125 @@
+#pragma once
+// Weak joins decided by the next join (docs/data_association.md, "Weak joins decided by the
+// next join"; SlamConfig::weak_join_pairings).
+//
+// A D&C join that pairs few features decides on little evidence, and one wrong pair between
+// features seen once bends both maps: the next, larger join then finds its true pairs
+// incompatible, and the landmarks of a whole lap end up duplicated. Such a weak join keeps a
+// second version of its result, the same pairs less those with a feature seen once (the
+// deferred pairs). The next join sees much more of the map: it runs its association on each
+// combination of its inputs' versions and joins the one that makes the most pairs in all, its
+// own and those of the versions it takes (a tie keeps the versions as made). Until then the
+// ids of neither version are recorded.
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <utility>
+#include <vector>
+
+#include "dcslam/core/gaussian_map.hpp"
+#include "dcslam/core/resumable_work.hpp"
+#include "dcslam/joining/join_report.hpp"
+#include "dcslam/joining/map_joining.hpp"
+#include "dcslam/joining/tentative_features.hpp"
+
+namespace dcslam {
+
+// What a join did to ids: each merged feature of m2 names the feature of m1 it joined
+// (from, to); each dropped tentative feature resolves to -1.
+struct JoinIds {
+  std::vector<std::pair<std::int64_t, std::int64_t>> merged;
+  std::vector<std::int64_t> dropped;
+};
+JoinIds join_ids(const MapJoin& join);
+
+// The second version of a weak join's result.
+struct JoinAlternative {
+  JoinIds made_ids;  // of the join as made (the version the tree holds)
+  std::shared_ptr<const GaussianMap> map;
+  std::vector<TentativeFeature> tentative;
+  JoinIds ids;
+};
+
+// A map of the join tree as the next join takes it.
+struct TreeMap {
+  std::shared_ptr<const GaussianMap> map;
+  // Its features seen once that still wait for a join (tentative_features.hpp).
+  std::vector<TentativeFeature> tentative;
+  // Set while the decision of the weak join that made it waits for the next join.
+  std::shared_ptr<const JoinAlternative> alternative;
+};
+
+// What a finished DecidingJoin leaves: the joined map (with its alternative when the join was
+// weak) and the ids to record now, oldest first: those of the inputs' versions it took, then
+// its own unless its decision waits.
+struct DecidedJoin {
+  std::shared_ptr<GaussianMap> map;  // a new map, held nowhere else
+  std::vector<TentativeFeature> tentative;
+  std::shared_ptr<const JoinAlternative> alternative;
+  std::vector<JoinIds> settled;
+  TreeMap tree_map() const { return TreeMap{map, tentative, alternative}; }
+};
+// The tentative features of a join's result, from the two versions it joined and the join.
+using TentativeOfJoin =
+    std::function<std::vector<TentativeFeature>(const TreeMap& first, const TreeMap& second, const MapJoin& join)>;
+
+class DecidingJoin : public ResumableWork<DecidingJoin> {
+ public:
+  using Pairs = MapJoin::Pairs;
+  // The MapJoin of two versions; with `fixed_pairs`, one that imposes those pairs.
+  using MakeJoin = std::function<std::unique_ptr<MapJoin>(const TreeMap& first, const TreeMap& second,
+                                                          std::shared_ptr<const Pairs> fixed_pairs)>;
+
+  // `weak_pairings`: the join keeps an alternative when it makes at most this many pairs and
+  // some of them have a feature seen once (listed as tentative by either version it joins);
+  // 0: never, its result is final.
+  DecidingJoin(TreeMap first, TreeMap second, MakeJoin make_join, int weak_pairings);
+  ~DecidingJoin();
+  DecidingJoin(const DecidingJoin&) = delete;
+  DecidingJoin& operator=(const DecidingJoin&) = delete;
+
+  // ResumableWork: a step is one step of a candidate's association, of the chosen join or of
+  // the alternative.
+  std::int64_t step(std::int64_t budget);
+  bool done() const { return phase_ == Phase::Done; }
+  std::int64_t remaining_work() const;
+
+  // Valid once done(). The versions joined:
+  const TreeMap& first() const { return first_version_; }
+  const TreeMap& second() const { return second_version_; }
+  bool took_first_alternative() const { return took_first_; }
+  bool took_second_alternative() const { return took_second_; }
+  // The chosen join, and the join of the alternative (null unless the join was weak).
+  MapJoin& join() { return *chosen_; }
+  const MapJoin& join() const { return *chosen_; }
+  MapJoin* alternative_join() { return alternative_.get(); }
+  // The chosen join's report, with the work and time of the candidates not chosen and of the
+  // alternative added, and the decision's own counts.
+  JoinReport report() const;
+  // The joined map and the ids it settles. Leaves the join empty (and its inputs released).
+  DecidedJoin take_result(const TentativeOfJoin& tentative_of);
+
+ private:
+  enum class Phase { Choose, Join, Alternative, Done };
+  struct Candidate {
+    bool first_alternative = false, second_alternative = false;
+    std::unique_ptr<MapJoin> join;
+  };
+  void choose();
+  void start_alternative();
+
+  TreeMap first_, second_;
+  MakeJoin make_join_;
+  int weak_pairings_;
+  Phase phase_ = Phase::Choose;
+  std::vector<Candidate> candidates_;
+  std::unique_ptr<MapJoin> chosen_;
+  std::unique_ptr<MapJoin> alternative_;
+  TreeMap first_version_, second_version_;
+  bool took_first_ = false, took_second_ = false;
+  int deferred_pairs_ = 0;
+  std::int64_t discarded_work_units_ = 0;
+  double discarded_seconds_ = 0.0;
+};
+
+}  // namespace dcslam
