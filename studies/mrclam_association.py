@@ -14,6 +14,7 @@ ceiling of a perfect choice behind those gates.
 
 Usage: python studies/mrclam_association.py [--robots 1 2 4] [--data-dir PATH/resampled_50hz]
        [--settings 0.99:0 0.999:0 0.999:0.2] [--oracle] [--final-merge-confidence 0.999]
+       [--weak-join-pairings 0]
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ def main() -> None:
     parser.add_argument("--oracle", action="store_true", help="also the among-candidates join oracle for D&C")
     parser.add_argument("--final-merge-confidence", type=float, default=None,
                         help="SlamConfig.final_merge_confidence of every run (default: unset)")
+    parser.add_argument("--weak-join-pairings", type=int, default=dcslam.SlamConfig.weak_join_pairings,
+                        help="SlamConfig.weak_join_pairings of every run (0: weak joins off)")
     args = parser.parse_args()
     print(f"{'robot':>5s} {'gate':>6s} {'join sigma':>10s} {'filter':6s} {'P':>6s} {'R':>6s} {'feat/lm':>7s} "
           f"{'wrong':>5s} {'robot err':>9s}")
@@ -51,7 +54,8 @@ def main() -> None:
         for setting in args.settings:
             gate, sigma = (float(value) for value in setting.split(":"))
             config = data.slam_config(association="jcbb", join_association="rjc", gate_confidence=gate,
-                                      join_feature_sigma=sigma, final_merge_confidence=args.final_merge_confidence)
+                                      join_feature_sigma=sigma, final_merge_confidence=args.final_merge_confidence,
+                                      weak_join_pairings=args.weak_join_pairings)
             rows = []
             if gate not in ekf_done:  # join_feature_sigma does not touch the EKF
                 ekf_done.add(gate)

@@ -3,7 +3,7 @@
 // amortized join spreads over many filter steps. A step is bounded by a work unit where the
 // computation's sizes allow, and its boundaries depend on the sizes and the unit alone, never
 // on how the steps are spread over calls, so a result is bitwise the same however it is
-// sliced. Every resumable computation (MapJoin, JoinAssociator, RjcSearch,
+// sliced. Every resumable computation (DecidingJoin, MapJoin, JoinAssociator, RjcSearch,
 // SequentialAcceptance, JointCompatibilityEnforcement, ResumableCholesky) is a ResumableWork.
 #include <algorithm>
 #include <cstdint>
