@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 
 #include "dcslam/core/errors.hpp"
+#include "dcslam/datasets/simulator.hpp"
 #include "dcslam/estimation/ekf_slam.hpp"
 #include "dcslam/joining/dc_slam.hpp"
 #include "print_parameters.hpp"
@@ -324,6 +325,54 @@ TEST(DcSlam, ImmediateAmortizedAndThreadedAreBitwiseIdentical) {
     EXPECT_TRUE((results[m].covariance.array() == results[0].covariance.array()).all());
     EXPECT_EQ(results[m].landmark_ids, results[0].landmark_ids);
     EXPECT_TRUE((results[m].robot.array() == results[0].robot.array()).all());
+  }
+}
+
+// Weak joins (join_alternatives.hpp) decide alike whichever way joins run, the worker thread
+// included: the simulator's small_loop_laps scene (seed 0), where a later join takes a weak
+// join's alternative.
+TEST(DcSlam, WeakJoinsDecideAlikeInEveryMode) {
+  SimulationConfig scene;
+  scene.trajectory = Trajectory::Loop;
+  scene.steps = 160;
+  scene.side_steps = 10;
+  scene.clutter = 0.1;
+  const Simulation sim = simulate(scene);
+  std::vector<Estimate> results;
+  std::vector<std::vector<std::int64_t>> ids;
+  for (Mode mode : {Mode::Immediate, Mode::Amortized, Mode::Threaded}) {
+    SlamConfig config;
+    config.association = Association::Jcbb;
+    config.join_association = JoinAssociation::Rjc;
+    config.amortize = mode == Mode::Amortized;
+    config.threaded_joins = mode == Mode::Threaded;
+    DCSlam dc(config);
+    std::vector<std::int64_t> returned;
+    for (Eigen::Index k = 0; k < sim.odometry.rows(); ++k) {
+      dc.predict(sim.odometry.row(k).transpose(), sim.odometry_covariance);
+      const auto begin = sim.step_offsets[static_cast<std::size_t>(k)];
+      const auto count = sim.step_offsets[static_cast<std::size_t>(k) + 1] - begin;
+      std::vector<Mat2> R;
+      for (Eigen::Index m = begin; m < begin + count; ++m) {
+        R.push_back(Eigen::Map<const Eigen::Matrix<double, 2, 2, Eigen::RowMajor>>(sim.measurement_covariances.row(m).data()));
+      }
+      const MeasurementMatrix z = sim.measurements.middleRows(begin, count);
+      const std::vector<std::int64_t> step_ids = dc.update(z, R, nullptr);
+      returned.insert(returned.end(), step_ids.begin(), step_ids.end());
+    }
+    dc.finish_joins();
+    int taken = 0;
+    for (const JoinEvent& event : dc.joins()) taken += event.report.alternatives_taken;
+    EXPECT_GT(taken, 0) << mode_name(mode);
+    results.push_back(dc.estimate());
+    ids.push_back(dc.resolve(returned));
+  }
+  for (std::size_t m = 1; m < results.size(); ++m) {
+    EXPECT_EQ(ids[m], ids[0]);
+    EXPECT_EQ(results[m].landmark_ids, results[0].landmark_ids);
+    EXPECT_TRUE((results[m].robot.array() == results[0].robot.array()).all());
+    EXPECT_TRUE(results[m].covariance.size() == results[0].covariance.size() &&
+                (results[m].covariance.array() == results[0].covariance.array()).all());
   }
 }
 
