@@ -178,7 +178,8 @@ double SequentialAcceptance::joint_distance_sq() const {
 // Each pairing left costs its covariances with the kept ones and a triangular solve of their
 // factor: about sum over m of (16 m + m^2 / 2) units.
 std::int64_t SequentialAcceptance::remaining_work() const {
-  return work_left(static_cast<std::int64_t>(kept_.size()), static_cast<std::int64_t>(order_.size()) - next_);
+  const auto left = static_cast<std::int64_t>(order_.size()) - next_;
+  return work_left(static_cast<std::int64_t>(kept_.size()), left);
 }
 
 std::int64_t SequentialAcceptance::work_left(std::int64_t kept, std::int64_t left) {
@@ -552,15 +553,19 @@ std::int64_t RjcSearch::complete_try() {
     // kept hypothesis is the try's own, and if it is the best this verification is the final
     // one's (verify_next()).
     if (!try_verification_) try_verification_ = std::make_unique<TryVerification>();
-    TryVerification& verification = *try_verification_;
-    verification.order = order_;
-    verification.feature_of = feature_of_;
-    verification.acceptance.emplace(verification.order, options_.b, verification.feature_of, model_, gate_);
+    begin_verification(*try_verification_, order_, feature_of_);
     stage_ = Stage::VerifyTry;
   } else {
     end_of_try();
   }
   return work;
+}
+
+void RjcSearch::begin_verification(TryVerification& verification, const std::vector<Pairing>& order,
+                                   const std::vector<int>& feature_of) const {
+  verification.order = order;
+  verification.feature_of = feature_of;
+  verification.acceptance.emplace(verification.order, options_.b, verification.feature_of, model_, gate_);
 }
 
 void RjcSearch::end_of_try() {
@@ -594,10 +599,7 @@ void RjcSearch::end_of_tries() {
     verification_replayed_ = best_verification_ != nullptr;
     if (!verification_replayed_) {  // the best try was its seed alone, which no try verifies
       best_verification_ = std::make_unique<TryVerification>();
-      TryVerification& verification = *best_verification_;
-      verification.order = best_order_;
-      verification.feature_of = result_.feature_of;
-      verification.acceptance.emplace(verification.order, options_.b, verification.feature_of, model_, gate_);
+      begin_verification(*best_verification_, best_order_, result_.feature_of);
     }
     int features = 0;
     for (const auto& list : candidates_) {
@@ -766,14 +768,15 @@ std::int64_t RjcSearch::remaining_work() const {
               : std::max(0.0, std::min(tries_wanted_, static_cast<double>(options_.max_tries)) - result_.tries);
       return static_cast<std::int64_t>(std::ceil(tries_left)) * try_cost() + verification;
     }
-    case Stage::Sequential:
+    case Stage::Sequential: {
       // With the completion (about one more pass) and the joint stage, which only runs should
-      // the kept pairings fail the test.
-      return 2 * (verification_replayed_
-                      ? SequentialAcceptance::work_left(replayed_kept_,
-                                                        static_cast<std::int64_t>(best_verification_->order.size() - replayed_))
-                      : best_verification_->acceptance->remaining_work()) +
-             k * k * k / 3;
+      // the kept pairings fail the test. A replayed verification counts what running it would.
+      const auto replay_left = static_cast<std::int64_t>(best_verification_->order.size() - replayed_);
+      const std::int64_t left = verification_replayed_
+                                    ? SequentialAcceptance::work_left(replayed_kept_, replay_left)
+                                    : best_verification_->acceptance->remaining_work();
+      return 2 * left + k * k * k / 3;
+    }
     case Stage::Completion:
     case Stage::CompletionAdd: {
       const std::size_t left = (stage_ == Stage::Completion ? overlap_.size() : completion_.size()) - next_completion_;

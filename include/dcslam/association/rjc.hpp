@@ -88,9 +88,11 @@ struct RjcResult {
 //
 // The conditional gate tests each pairing against H only, not against the other added
 // pairings, so with verify on the best hypothesis is re-tested by accept_sequentially() (each
-// pairing against all those kept before it, in the order the try accepted them). The factor
-// it grows holds the kept pairings' joint D^2 (chain rule); only if that fails the joint test
-// is the hypothesis made jointly compatible by enforce_joint_compatibility(). That costs
+// pairing against all those kept before it, in the order the try accepted them). That is the
+// test the try was scored by, so a verified best try's own result is taken, not computed
+// again; its steps are still counted, which keeps an amortized join's schedule as it was.
+// The factor it grows holds the kept pairings' joint D^2 (chain rule); only if that fails the
+// joint test is the hypothesis made jointly compatible by enforce_joint_compatibility(). That costs
 // O(k^3) for k pairings, no more than the O(n^2 k) join update that consumes them.
 //
 // Between the two, with verify on, the overlap measurements left unpaired get a second
@@ -243,6 +245,9 @@ class RjcSearch : public ResumableWork<RjcSearch> {
     std::vector<int> feature_of;
     std::optional<SequentialAcceptance> acceptance;
   };
+  // Copies of a try's pairings and hypothesis into `verification`, and their test begun.
+  void begin_verification(TryVerification& verification, const std::vector<Pairing>& order,
+                          const std::vector<int>& feature_of) const;
 
   const CandidateLists& candidates_;
   const PairingModel& model_;
