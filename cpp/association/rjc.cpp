@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <random>
 #include <tuple>
 #include <unordered_map>
@@ -114,12 +115,16 @@ void SequentialAcceptance::condition(const Pairing& pairing, Vec2& innovation, M
   covariance = model_.covariance(pairing, pairing) - cross_kept.transpose() * cross_kept;
 }
 
+std::int64_t SequentialAcceptance::step_work(std::int64_t kept) {
+  return kPairingCovarianceUnits * (kept + 1) + kept * kept / 2;
+}
+
 std::int64_t SequentialAcceptance::step(std::int64_t) {
   const Pairing& pairing = order_[static_cast<std::size_t>(next_)];
   const auto m = static_cast<Eigen::Index>(kept_.size());
   const bool seed = next_ < seed_size_;
   ++next_;
-  const std::int64_t work = kPairingCovarianceUnits * (m + 1) + static_cast<std::int64_t>(m) * m / 2;
+  const std::int64_t work = step_work(m);
   Vec2 innovation;
   Mat2 covariance;
   condition(pairing, innovation, covariance);
@@ -174,7 +179,11 @@ double SequentialAcceptance::joint_distance_sq() const {
 // factor: about sum over m of (16 m + m^2 / 2) units.
 std::int64_t SequentialAcceptance::remaining_work() const {
   const auto left = static_cast<std::int64_t>(order_.size()) - next_;
-  const auto m0 = static_cast<std::int64_t>(kept_.size()), m1 = m0 + left;
+  return work_left(static_cast<std::int64_t>(kept_.size()), left);
+}
+
+std::int64_t SequentialAcceptance::work_left(std::int64_t kept, std::int64_t left) {
+  const std::int64_t m0 = kept, m1 = m0 + left;
   return kPairingCovarianceUnits * left * (m0 + m1) / 2 + (m1 * m1 * m1 - m0 * m0 * m0) / 6 + left;
 }
 
@@ -341,20 +350,13 @@ std::int64_t RjcSearch::step(std::int64_t budget) {
     case Stage::CompleteTry:
       return complete_try();
     case Stage::VerifyTry: {
-      const std::int64_t work = try_verification_->step(budget);
-      if (try_verification_->done()) end_of_try();
+      SequentialAcceptance& acceptance = *try_verification_->acceptance;
+      const std::int64_t work = acceptance.step(budget);
+      if (acceptance.done()) end_of_try();
       return work;
     }
-    case Stage::Sequential: {
-      const std::int64_t work = sequential_->step(budget);
-      if (sequential_->done()) {
-        result_.dropped = sequential_->removed();
-        completion_.clear();
-        next_completion_ = 0;
-        stage_ = Stage::Completion;
-      }
-      return work;
-    }
+    case Stage::Sequential:
+      return verify_next(budget);
     case Stage::Completion:
       return completion_next();
     case Stage::CompletionAdd:
@@ -364,8 +366,9 @@ std::int64_t RjcSearch::step(std::int64_t budget) {
       if (joint_->done()) {
         result_.dropped += joint_->removed();
         result_.joint_distance_sq = joint_->joint_distance_sq();
-        result_.pairings = sequential_->kept() - joint_->removed();
-        stage_ = Stage::Done;
+        result_.pairings = best_verification_->acceptance->kept() - joint_->removed();
+        joint_.reset();
+        take_verified_hypothesis();
       }
       return work;
     }
@@ -547,9 +550,10 @@ std::int64_t RjcSearch::complete_try() {
                             work_units(static_cast<std::int64_t>(feature_of_.size()));
   if (options_.verify && pairings > options_.b) {
     // Scored once verified (see rjc()), a pairing per step like the final verification; the
-    // kept hypothesis is the try's own, which that verification re-tests the same way.
-    verified_scratch_ = feature_of_;
-    try_verification_.emplace(order_, options_.b, verified_scratch_, model_, gate_);
+    // kept hypothesis is the try's own, and if it is the best this verification is the final
+    // one's (verify_next()).
+    if (!try_verification_) try_verification_ = std::make_unique<TryVerification>();
+    begin_verification(*try_verification_, order_, feature_of_);
     stage_ = Stage::VerifyTry;
   } else {
     end_of_try();
@@ -557,17 +561,28 @@ std::int64_t RjcSearch::complete_try() {
   return work;
 }
 
+void RjcSearch::begin_verification(TryVerification& verification, const std::vector<Pairing>& order,
+                                   const std::vector<int>& feature_of) const {
+  verification.order = order;
+  verification.feature_of = feature_of;
+  verification.acceptance.emplace(verification.order, options_.b, verification.feature_of, model_, gate_);
+}
+
 void RjcSearch::end_of_try() {
-  if (try_verification_) {
-    try_pairings_ -= try_verification_->removed();
-    try_verification_.reset();
-  }
+  const bool verified = try_verification_ && try_verification_->acceptance;
+  if (verified) try_pairings_ -= try_verification_->acceptance->removed();
   if (try_pairings_ > best_pairings_ || (try_pairings_ == best_pairings_ && try_score_ < best_score_)) {
     best_pairings_ = try_pairings_;
     best_score_ = try_score_;
     result_.feature_of = feature_of_;
     best_order_ = order_;
+    if (verified) {
+      std::swap(best_verification_, try_verification_);
+    } else {
+      best_verification_.reset();
+    }
   }
+  if (try_verification_) try_verification_->acceptance.reset();
   p_good_ = std::max(p_good_, static_cast<double>(best_pairings_) / result_.overlap_size);
   tries_wanted_ = tries_needed(p_good_, options_.b, options_.p_fail);
   stage_ = Stage::Seed;
@@ -580,7 +595,12 @@ void RjcSearch::end_of_tries() {
     result_.joint_distance_sq = 0.0;
     stage_ = Stage::Done;
   } else if (options_.verify) {
-    sequential_.emplace(best_order_, options_.b, result_.feature_of, model_, gate_);
+    try_verification_.reset();
+    verification_replayed_ = best_verification_ != nullptr;
+    if (!verification_replayed_) {  // the best try was its seed alone, which no try verifies
+      best_verification_ = std::make_unique<TryVerification>();
+      begin_verification(*best_verification_, best_order_, result_.feature_of);
+    }
     int features = 0;
     for (const auto& list : candidates_) {
       for (int feature : list) features = std::max(features, feature + 1);
@@ -595,6 +615,33 @@ void RjcSearch::end_of_tries() {
   }
 }
 
+// The final verification's next pairing. When the best try was verified as it was scored, that
+// was this same computation on the same pairings, so its result stands and each step only
+// counts its work again: an amortized join's schedule (which join finishes at which step, and
+// so every estimate) stays that of computing it twice.
+std::int64_t RjcSearch::verify_next(std::int64_t budget) {
+  TryVerification& verification = *best_verification_;
+  SequentialAcceptance& acceptance = *verification.acceptance;
+  std::int64_t work = 0;
+  bool finished = false;
+  if (verification_replayed_) {
+    const Pairing& pairing = verification.order[replayed_++];
+    work = SequentialAcceptance::step_work(replayed_kept_);
+    if (verification.feature_of[static_cast<std::size_t>(pairing.measurement)] != kStar) ++replayed_kept_;
+    finished = replayed_ == verification.order.size();
+  } else {
+    work = acceptance.step(budget);
+    finished = acceptance.done();
+  }
+  if (finished) {
+    result_.dropped = acceptance.removed();
+    completion_.clear();
+    next_completion_ = 0;
+    stage_ = Stage::Completion;
+  }
+  return work;
+}
+
 // One overlap measurement left unpaired: its candidates that no kept pairing uses, each
 // conditioned on all the kept pairings, collected if they pass the gate.
 std::int64_t RjcSearch::completion_next() {
@@ -603,12 +650,13 @@ std::int64_t RjcSearch::completion_next() {
     return 1;
   }
   const int measurement = overlap_[next_completion_++];
-  if (result_.feature_of[static_cast<std::size_t>(measurement)] != kStar) return 1;
-  const auto k = static_cast<std::int64_t>(sequential_->kept());
+  if (best_verification_->feature_of[static_cast<std::size_t>(measurement)] != kStar) return 1;
+  SequentialAcceptance& acceptance = *best_verification_->acceptance;
+  const auto k = static_cast<std::int64_t>(acceptance.kept());
   std::int64_t work = 1;
   for (int feature : candidates_[static_cast<std::size_t>(measurement)]) {
     if (feature_used_[static_cast<std::size_t>(feature)]) continue;
-    const double distance_sq = sequential_->conditional_distance_sq(Pairing{measurement, feature});
+    const double distance_sq = acceptance.conditional_distance_sq(Pairing{measurement, feature});
     work += kPairingCovarianceUnits * (k + 1) + k * k / 2;
     if (distance_sq <= gate_) completion_.emplace_back(distance_sq, measurement, feature);
   }
@@ -657,8 +705,9 @@ std::int64_t RjcSearch::completion_add_next() {
     return 1;
   }
   const auto [distance_sq, measurement, feature] = completion_[next_completion_++];
-  const auto k = static_cast<std::int64_t>(sequential_->kept());
-  if (sequential_->append(Pairing{measurement, feature})) {
+  SequentialAcceptance& acceptance = *best_verification_->acceptance;
+  const auto k = static_cast<std::int64_t>(acceptance.kept());
+  if (acceptance.append(Pairing{measurement, feature})) {
     feature_used_[static_cast<std::size_t>(feature)] = 1;
     ++result_.completed;
   }
@@ -668,17 +717,24 @@ std::int64_t RjcSearch::completion_add_next() {
 // The joint test of everything kept: usually passed as it is (the sequential factor already
 // holds the kept pairings' D^2, and S need not be stacked and factored again).
 void RjcSearch::end_of_verification() {
-  const int kept = sequential_->kept();
-  const double distance_sq = sequential_->joint_distance_sq();
+  const SequentialAcceptance& acceptance = *best_verification_->acceptance;
+  const int kept = acceptance.kept();
+  const double distance_sq = acceptance.joint_distance_sq();
   if (kept == 0 || distance_sq <= chi2_quantile(2 * kept, options_.confidence)) {
     result_.joint_distance_sq = distance_sq;
     result_.pairings = kept;
-    stage_ = Stage::Done;
+    take_verified_hypothesis();
   } else {
-    joint_.emplace(result_.feature_of, model_, options_.confidence, options_.panel_width,
+    joint_.emplace(best_verification_->feature_of, model_, options_.confidence, options_.panel_width,
                    options_.work_unit);
     stage_ = Stage::Joint;
   }
+}
+
+void RjcSearch::take_verified_hypothesis() {
+  result_.feature_of = std::move(best_verification_->feature_of);
+  best_verification_.reset();
+  stage_ = Stage::Done;
 }
 
 // One try: its seed and the conditional test of every overlap candidate against b pairings.
@@ -712,10 +768,15 @@ std::int64_t RjcSearch::remaining_work() const {
               : std::max(0.0, std::min(tries_wanted_, static_cast<double>(options_.max_tries)) - result_.tries);
       return static_cast<std::int64_t>(std::ceil(tries_left)) * try_cost() + verification;
     }
-    case Stage::Sequential:
+    case Stage::Sequential: {
       // With the completion (about one more pass) and the joint stage, which only runs should
-      // the kept pairings fail the test.
-      return 2 * sequential_->remaining_work() + k * k * k / 3;
+      // the kept pairings fail the test. A replayed verification counts what running it would.
+      const auto replay_left = static_cast<std::int64_t>(best_verification_->order.size() - replayed_);
+      const std::int64_t left = verification_replayed_
+                                    ? SequentialAcceptance::work_left(replayed_kept_, replay_left)
+                                    : best_verification_->acceptance->remaining_work();
+      return 2 * left + k * k * k / 3;
+    }
     case Stage::Completion:
     case Stage::CompletionAdd: {
       const std::size_t left = (stage_ == Stage::Completion ? overlap_.size() : completion_.size()) - next_completion_;

@@ -88,9 +88,11 @@ struct RjcResult {
 //
 // The conditional gate tests each pairing against H only, not against the other added
 // pairings, so with verify on the best hypothesis is re-tested by accept_sequentially() (each
-// pairing against all those kept before it, in the order the try accepted them). The factor
-// it grows holds the kept pairings' joint D^2 (chain rule); only if that fails the joint test
-// is the hypothesis made jointly compatible by enforce_joint_compatibility(). That costs
+// pairing against all those kept before it, in the order the try accepted them). That is the
+// test the try was scored by, so a verified best try's own result is taken, not computed
+// again; its steps are still counted, which keeps an amortized join's schedule as it was.
+// The factor it grows holds the kept pairings' joint D^2 (chain rule); only if that fails the
+// joint test is the hypothesis made jointly compatible by enforce_joint_compatibility(). That costs
 // O(k^3) for k pairings, no more than the O(n^2 k) join update that consumes them.
 //
 // Between the two, with verify on, the overlap measurements left unpaired get a second
@@ -128,6 +130,10 @@ class SequentialAcceptance : public ResumableWork<SequentialAcceptance> {
   std::int64_t step(std::int64_t budget);
   bool done() const { return next_ == static_cast<Eigen::Index>(order_.size()); }
   std::int64_t remaining_work() const;
+  // What step() counts for a pairing tested against `kept` kept pairings, and what
+  // remaining_work() counts for `left` pairings still to test after `kept` were kept.
+  static std::int64_t step_work(std::int64_t kept);
+  static std::int64_t work_left(std::int64_t kept, std::int64_t left);
   int removed() const { return removed_; }
   // D^2 of the pairings kept so far, in the order kept: the sum of their distances each
   // conditioned on those before it (the chain rule), so no joint factor is needed for it.
@@ -226,8 +232,22 @@ class RjcSearch : public ResumableWork<RjcSearch> {
   std::int64_t completion_next();
   void begin_completion_adds();
   std::int64_t completion_add_next();
+  std::int64_t verify_next(std::int64_t budget);
   void end_of_verification();
+  void take_verified_hypothesis();  // the verified hypothesis into the result, and done
   std::int64_t try_cost() const;
+
+  // A try's pairings in the order it accepted them, its hypothesis, and their verification
+  // (which reads the one and thins the other), held together so that the best try's finished
+  // verification can be kept for the final one instead of being computed again.
+  struct TryVerification {
+    std::vector<Pairing> order;
+    std::vector<int> feature_of;
+    std::optional<SequentialAcceptance> acceptance;
+  };
+  // Copies of a try's pairings and hypothesis into `verification`, and their test begun.
+  void begin_verification(TryVerification& verification, const std::vector<Pairing>& order,
+                          const std::vector<int>& feature_of) const;
 
   const CandidateLists& candidates_;
   const PairingModel& model_;
@@ -243,8 +263,9 @@ class RjcSearch : public ResumableWork<RjcSearch> {
   CandidateLists sample_candidates_;
   std::vector<int> feature_of_;
   std::vector<int> used_features_;
-  std::vector<int> verified_scratch_;
-  std::optional<SequentialAcceptance> try_verification_;
+  // The current try's verification (its buffers reused from try to try), and the best try's
+  // once verified (null while the best try is one that needed none).
+  std::unique_ptr<TryVerification> try_verification_, best_verification_;
   int try_pairings_ = 0;
   double try_score_ = 0.0;
   std::vector<char> feature_used_;  // per feature of m1, during the verification
@@ -265,7 +286,12 @@ class RjcSearch : public ResumableWork<RjcSearch> {
   // conditioned on all kept pairings, and the next one to test or add.
   std::vector<std::tuple<double, int, int>> completion_;
   std::size_t next_completion_ = 0;
-  std::optional<SequentialAcceptance> sequential_;
+  // The final verification: best_verification_, run now if the best try had none, else its
+  // steps only counted again (verify_next()); then the completion and the joint test work on
+  // its hypothesis, which becomes result_.feature_of.
+  bool verification_replayed_ = false;
+  std::size_t replayed_ = 0;  // pairings of the order counted so far
+  std::int64_t replayed_kept_ = 0;  // and how many of them the verification kept
   std::optional<JointCompatibilityEnforcement> joint_;
 };
 

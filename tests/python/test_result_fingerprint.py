@@ -1,0 +1,43 @@
+"""tools/result_fingerprint.py, run as a developer runs it: two runs of the same build
+fingerprint alike, and a changed byte in any array is found."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+TOOL = ROOT / "tools" / "result_fingerprint.py"
+
+
+def run_tool(*arguments) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(TOOL), *map(str, arguments)], capture_output=True, text=True,
+                          cwd=ROOT, timeout=600)
+
+
+def test_the_same_build_fingerprints_alike_and_a_changed_bit_is_found(tmp_path):
+    first, second, changed = tmp_path / "first.npz", tmp_path / "second.npz", tmp_path / "changed.npz"
+    for path in (first, second):
+        run = run_tool("--quick", path)
+        assert run.returncode == 0, run.stdout + run.stderr
+    saved = dict(np.load(first))
+    assert {"small_loop_laps/0/ids", "small_loop_laps/0/trajectory", "small_loop_laps/0/covariance"} <= set(saved)
+    assert saved["small_loop_laps/0/landmark_ids"].size > 0
+
+    same = run_tool("--compare", first, second)
+    assert same.returncode == 0, same.stdout + same.stderr
+    assert "0 differ" in same.stdout
+
+    covariance = saved["small_loop_laps/0/covariance"]
+    covariance[0, 0] = np.nextafter(covariance[0, 0], np.inf)  # one unit in the last place
+    np.savez(changed, **saved)
+    different = run_tool("--compare", first, changed)
+    assert different.returncode == 1
+    assert "1 differ: small_loop_laps/0/covariance" in different.stdout
+
+
+def test_it_needs_an_output_or_two_files_to_compare():
+    run = run_tool()
+    assert run.returncode == 2
+    assert "give an output .npz" in run.stderr
