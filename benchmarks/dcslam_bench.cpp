@@ -63,6 +63,7 @@ Options of sim, scaling, vp and isam:
   --join-feature-sigma S  SlamConfig.join_feature_sigma [m]   [0; vp: 0.1]
   --keep-local-map-poses 0|1  D&C keeps the robot at every local map's end  [0]
   --tree-relinearisation N  SlamConfig.tree_relinearisation: passes in estimate()  [0]
+  --weak-join-pairings N  SlamConfig.weak_join_pairings (0: off)   [30]
   --seed S                                                          [0]
   --json FILE          write per-step times and totals as JSON
 
@@ -322,6 +323,7 @@ void apply_run_options(const Args& args, SlamConfig& config) {
   config.join_iterations = static_cast<int>(number(args, "join-iterations", config.join_iterations));
   config.join_feature_sigma = real_number(args, "join-feature-sigma", config.join_feature_sigma);
   config.tree_relinearisation = static_cast<int>(number(args, "tree-relinearisation", config.tree_relinearisation));
+  config.weak_join_pairings = static_cast<int>(number(args, "weak-join-pairings", config.weak_join_pairings));
   const long keep_poses = number(args, "keep-local-map-poses", 0);
   if (keep_poses != 0 && keep_poses != 1) {
     throw InvalidArgument("dcslam_bench: --keep-local-map-poses expects 0 or 1");
@@ -613,11 +615,11 @@ int command_vp(const Args& args) {
               options.odometry.floor_sigma_xy, options.odometry.floor_sigma_phi);
   std::printf("  config: range_bearing, sensor offset (%g, %g, %g), association %s, join %s, gate %g, "
               "local maps of %d features, min_sightings %d, tentative_window %d, join_iterations %d, "
-              "join_feature_sigma %g m\n",
+              "join_feature_sigma %g m, weak_join_pairings %d\n",
               config.sensor_offset.x(), config.sensor_offset.y(), config.sensor_offset.z(),
               to_string(config.association), to_string(config.join_association), config.gate_confidence,
               config.local_map_features, config.min_sightings, config.tentative_window,
-              config.join_iterations, config.join_feature_sigma);
+              config.join_iterations, config.join_feature_sigma, config.weak_join_pairings);
   return report("vp", args, static_cast<int>(steps.size()), run_filters(args, config, steps, nullptr));
 }
 
