@@ -263,7 +263,7 @@ void MapJoin::finish_association() {
 }
 
 void MapJoin::release_inputs() {
-  fill_.reset();
+  // The fill's matrices stay until the join is destroyed, which D&C spreads over later steps.
   first_.reset();
   second_.reset();
   relinearisation_.release();

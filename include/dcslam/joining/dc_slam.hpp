@@ -250,6 +250,9 @@ class DCSlam : public SlamFilter {
   // Oldest first; guarded by mutex_ (complete() releases them on the worker).
   std::deque<RestorePoint> restore_points_;
   BeforeUpdate before_update_;  // front end only
+  // Finished joins' inputs, matrices and restore points, freed one a step (begin_step());
+  // guarded by mutex_.
+  std::deque<std::shared_ptr<const void>> released_;
   std::thread worker_;
 
   mutable RunStats stats_;  // counters are refreshed by stats()
