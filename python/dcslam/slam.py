@@ -399,7 +399,10 @@ class DCSlam(SlamFilter):
         """What each real join's association saw and decided, by feature id, in the order of
         ``stats.joins``: dicts with ``first_ids`` and ``second_ids`` (int64 arrays, the two
         maps' features) and ``pairs`` ((k, 2) int64 array of (id in the first map, id in the
-        second) matched). Empty arrays while a join is pending. Ids are those ``update()``
+        second) matched). Empty arrays while a join is pending. A weak join's ``pairs`` are
+        those it made, its deferred ones included (``stats.joins``' ``deferred_pairings``),
+        also when a later join took its alternative without them (that join's
+        ``alternatives_taken``; ``cfg.weak_join_pairings``). Ids are those ``update()``
         returned (before ``resolve()``), so a simulator's ids label them; see
         ``studies/duplicate_diagnosis.py --joins``.
 
