@@ -536,11 +536,20 @@ std::unique_ptr<DecidingJoin> DCSlam::make_join(const TreeMap& first, const Tree
                                      last_chance(*a.map, a.tentative, first_leaf, last_leaf),
                                      last_chance(*b.map, b.tentative, first_leaf, last_leaf));
   };
-  // Pairs by the caller's ids are not a decision to revisit.
-  const bool may_be_weak = left.leaves + right.leaves >= kMinWeakJoinLeaves &&
-                           config_.join_association != JoinAssociation::Known;
   return std::make_unique<DecidingJoin>(first, second, std::move(make),
-                                        may_be_weak ? config_.weak_join_pairings : 0);
+                                        weak_pairings(left.leaves + right.leaves >= kMinWeakJoinLeaves));
+}
+
+int DCSlam::weak_pairings(bool may_be_weak) const {
+  // Pairs by the caller's ids are not a decision to revisit.
+  return may_be_weak && config_.join_association != JoinAssociation::Known ? config_.weak_join_pairings : 0;
+}
+
+TentativeOfJoin DCSlam::tentative_of(const Node& left, const Node& right) {
+  return [first_leaf = left.first_leaf, last_leaf = right.first_leaf + right.leaves - 1](
+             const TreeMap& first, const TreeMap& second, const MapJoin& join) {
+    return joined_tentative(first.tentative, second.tentative, join, first_leaf, last_leaf);
+  };
 }
 
 namespace {
@@ -570,12 +579,8 @@ void record_ids(const JoinIds& ids, IdAliases& aliases, SeenWith& seen_with) {
 }  // namespace
 
 void DCSlam::complete(JoinTask& task) {
-  const std::int64_t first_leaf = task.left->first_leaf;
-  const std::int64_t last_leaf = task.right->first_leaf + task.right->leaves - 1;
   const JoinReport report = task.join->report();
-  DecidedJoin decided = task.join->take_result([&](const TreeMap& first, const TreeMap& second, const MapJoin& join) {
-    return joined_tentative(first.tentative, second.tentative, join, first_leaf, last_leaf);
-  });
+  DecidedJoin decided = task.join->take_result(tentative_of(*task.left, *task.right));
   std::lock_guard<std::mutex> lock(mutex_);
   JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
   event.report = report;
@@ -688,10 +693,7 @@ TreeMap DCSlam::materialize(const FrozenNode& node, IdAliases& aliases, SeenWith
                           std::to_string(node.step_created) + ") fails: " + error.what() +
                           "; the filter is unchanged until it runs that join (finish_joins() runs it now)");
   }
-  const std::int64_t last_leaf = right.first_leaf + right.leaves - 1;
-  DecidedJoin decided = join->take_result([&](const TreeMap& a, const TreeMap& b, const MapJoin& made) {
-    return joined_tentative(a.tentative, b.tentative, made, left.first_leaf, last_leaf);
-  });
+  DecidedJoin decided = join->take_result(tentative_of(left, right));
   for (const JoinIds& ids : decided.settled) record_ids(ids, aliases, seen_with);
   return decided.tree_map();
 }
@@ -764,8 +766,7 @@ Estimate DCSlam::estimate() const {
     const bool last = std::next(it) == stack.rend();
     DecidingJoin join(materialize(**it, aliases, seen_with),
                       TreeMap{std::move(joined), std::move(joined_seen_once), std::move(joined_alternative)},
-                      std::move(make),
-                      last || config_.join_association == JoinAssociation::Known ? 0 : config_.weak_join_pairings);
+                      std::move(make), weak_pairings(!last));
     try {
       join.finish();  // at most the inputs and the result are alive
     } catch (const std::exception& error) {

@@ -37,19 +37,10 @@ std::vector<TentativeFeature> joined_tentative(const std::vector<TentativeFeatur
                                                const std::vector<TentativeFeature>& second,
                                                const MapJoin& join, std::int64_t first_leaf,
                                                std::int64_t last_leaf) {
-  std::unordered_set<std::int64_t> matched;
-  for (const auto& [from, to] : join.merged_ids()) {
-    matched.insert(from);
-    matched.insert(to);
-  }
   std::vector<TentativeFeature> kept;
-  for (const auto* side : {&first, &second}) {
-    for (const TentativeFeature& feature : *side) {
-      const TentativeFeature after = met(feature, first_leaf, last_leaf);
-      if ((after.needs_previous || after.needs_next) && matched.count(feature.id) == 0) {
-        kept.push_back(after);
-      }
-    }
+  for (const TentativeFeature& feature : unmatched_tentative(first, second, join)) {
+    const TentativeFeature after = met(feature, first_leaf, last_leaf);
+    if (after.needs_previous || after.needs_next) kept.push_back(after);
   }
   return kept;
 }

@@ -9,24 +9,15 @@
 #include <gtest/gtest.h>
 
 #include "dcslam/joining/join_alternatives.hpp"
+#include "random_map.hpp"
 
 namespace dcslam {
 namespace {
 
 using Index = Eigen::Index;
 
-std::shared_ptr<const GaussianMap> random_map(std::mt19937_64& rng, const std::vector<std::int64_t>& ids) {
-  std::normal_distribution<double> normal;
-  std::uniform_real_distribution<double> uniform(-20, 20);
-  GaussianMap map;
-  for (std::int64_t id : ids) map.append_feature(Vec2(uniform(rng), uniform(rng)), id);
-  map.x().head<3>() = Vec3(uniform(rng), uniform(rng), uniform(rng) / 7.0);
-  const Index d = map.dim();
-  Eigen::MatrixXd A(d, d);
-  for (Index i = 0; i < d; ++i)
-    for (Index j = 0; j < d; ++j) A(i, j) = 0.1 * normal(rng);
-  map.P() = A * A.transpose() + 0.05 * Eigen::MatrixXd::Identity(d, d);
-  return std::make_shared<const GaussianMap>(std::move(map));
+std::shared_ptr<const GaussianMap> shared_random_map(std::mt19937_64& rng, const std::vector<std::int64_t>& ids) {
+  return std::make_shared<const GaussianMap>(random_map(rng, ids));
 }
 
 // `count` distinct ids drawn from [0, range).
@@ -76,8 +67,8 @@ TreeMap with_alternative(std::shared_ptr<const GaussianMap> made, std::size_t ma
 TEST(DecidingJoin, WithoutAlternativesItIsThePlainJoinInAnySlices) {
   std::mt19937_64 rng(3);
   for (int trial = 0; trial < 6; ++trial) {
-    const auto m1 = random_map(rng, some_ids(rng, 12, 30));
-    const auto m2 = random_map(rng, some_ids(rng, 10, 30));
+    const auto m1 = shared_random_map(rng, some_ids(rng, 12, 30));
+    const auto m2 = shared_random_map(rng, some_ids(rng, 10, 30));
     JoinOptions options;
     options.block_columns = 4;
     const GaussianMap plain = join_maps(*m1, *m2, options);
@@ -96,10 +87,10 @@ TEST(DecidingJoin, TakesTheCombinationWithTheMostPairsInAll) {
   std::mt19937_64 rng(11);
   int took_an_alternative = 0;
   for (int trial = 0; trial < 40; ++trial) {
-    const auto first_made = random_map(rng, some_ids(rng, 10, 24));
-    const auto first_alt = random_map(rng, some_ids(rng, 11, 24));
-    const auto second_made = random_map(rng, some_ids(rng, 9, 24));
-    const auto second_alt = random_map(rng, some_ids(rng, 10, 24));
+    const auto first_made = shared_random_map(rng, some_ids(rng, 10, 24));
+    const auto first_alt = shared_random_map(rng, some_ids(rng, 11, 24));
+    const auto second_made = shared_random_map(rng, some_ids(rng, 9, 24));
+    const auto second_alt = shared_random_map(rng, some_ids(rng, 10, 24));
     std::uniform_int_distribution<std::size_t> pairs(0, 6);
     const std::size_t pairs_first_made = pairs(rng), pairs_first_alt = pairs(rng);
     const std::size_t pairs_second_made = pairs(rng), pairs_second_alt = pairs(rng);
@@ -141,8 +132,8 @@ TEST(DecidingJoin, AWeakJoinsAlternativeLeavesOutThePairsOfFeaturesSeenOnce) {
   std::mt19937_64 rng(5);
   const std::vector<std::int64_t> first_ids = {1, 2, 3, 4, 5, 6, 7, 8};
   const std::vector<std::int64_t> second_ids = {20, 3, 21, 5, 22, 7, 8};  // shares 3, 5, 7, 8
-  const auto m1 = random_map(rng, first_ids);
-  const auto m2 = random_map(rng, second_ids);
+  const auto m1 = shared_random_map(rng, first_ids);
+  const auto m2 = shared_random_map(rng, second_ids);
   // 5 was seen once in the first map, 8 once in the second: their pairs are deferred.
   const TreeMap first{m1, {TentativeFeature{5, 0, false, false}}, nullptr};
   const TreeMap second{m2, {TentativeFeature{8, 1, false, false}}, nullptr};

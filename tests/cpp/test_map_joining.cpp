@@ -9,26 +9,12 @@
 #include "dcslam/joining/join_association.hpp"
 #include "dcslam/joining/map_joining.hpp"
 #include "numeric_jacobian.hpp"
+#include "random_map.hpp"
 
 namespace dcslam {
 namespace {
 
 using Index = Eigen::Index;
-
-// A random map: features scattered around, a random SPD covariance, ids from `ids`.
-GaussianMap random_map(std::mt19937_64& rng, const std::vector<std::int64_t>& ids) {
-  std::normal_distribution<double> normal;
-  std::uniform_real_distribution<double> uniform(-20, 20);
-  GaussianMap map;
-  for (std::int64_t id : ids) map.append_feature(Vec2(uniform(rng), uniform(rng)), id);
-  map.x().head<3>() = Vec3(uniform(rng), uniform(rng), uniform(rng) / 7.0);
-  const Index d = map.dim();
-  Eigen::MatrixXd A(d, d);
-  for (Index i = 0; i < d; ++i)
-    for (Index j = 0; j < d; ++j) A(i, j) = 0.1 * normal(rng);
-  map.P() = A * A.transpose() + 0.05 * Eigen::MatrixXd::Identity(d, d);
-  return map;
-}
 
 // `map` with `poses` past poses appended (ids first_id, first_id + 1, ...): random poses,
 // correlated with the map as q = B x + e would be (so P stays positive definite).

@@ -185,6 +185,10 @@ class DCSlam : public SlamFilter {
   // kMinWeakJoinLeaves local maps or more.
   std::unique_ptr<DecidingJoin> make_join(const TreeMap& first, const TreeMap& second, const Node& left,
                                           const Node& right, int index) const;
+  // DecidingJoin's weak_pairings for a join that may be weak by its place in the tree.
+  int weak_pairings(bool may_be_weak) const;
+  // The tentative features of the join of `left` and `right` (joined_tentative()).
+  static TentativeOfJoin tentative_of(const Node& left, const Node& right);
   // A node as it stood when estimate() began: its map if complete, else the inputs of its
   // pending join. A join the worker completes during the estimate must not be seen: its
   // merges would be missing from the leaf sets estimate() copied at the start.
