@@ -654,9 +654,12 @@ struct CheckpointAccess {
       out.pod<std::uint8_t>(node.alternative != nullptr);
       if (node.alternative) {
         save_join_ids(out, node.alternative->made_ids);
-        save_map(out, *node.alternative->map);
-        save_tentative(out, node.alternative->tentative);
-        save_join_ids(out, node.alternative->ids);
+        out.pod(static_cast<std::uint32_t>(node.alternative->versions.size()));
+        for (const JoinAlternative::Version& version : node.alternative->versions) {
+          save_map(out, *version.map);
+          save_tentative(out, version.tentative);
+          save_join_ids(out, version.ids);
+        }
       }
       return;
     }
@@ -683,9 +686,15 @@ struct CheckpointAccess {
       if (in.flag()) {
         auto alternative = std::make_shared<JoinAlternative>();
         alternative->made_ids = load_join_ids(in);
-        alternative->map = std::make_shared<const GaussianMap>(load_map(in));
-        alternative->tentative = load_tentative(in);
-        alternative->ids = load_join_ids(in);
+        const auto versions = in.pod<std::uint32_t>();
+        Reader::require(versions >= 1 && versions <= 2, "a weak join with 1 or 2 other versions");
+        for (std::uint32_t k = 0; k < versions; ++k) {
+          JoinAlternative::Version version;
+          version.map = std::make_shared<const GaussianMap>(load_map(in));
+          version.tentative = load_tentative(in);
+          version.ids = load_join_ids(in);
+          alternative->versions.push_back(std::move(version));
+        }
         node->alternative = std::move(alternative);
       }
       return node;

@@ -9,17 +9,25 @@ JoinIds join_ids(const MapJoin& join) { return JoinIds{join.merged_ids(), join.d
 
 namespace {
 
-TreeMap alternative_version(const TreeMap& map) {
-  return TreeMap{map.alternative->map, map.alternative->tentative, nullptr};
+int num_versions(const TreeMap& map) {
+  return 1 + (map.alternative ? static_cast<int>(map.alternative->versions.size()) : 0);
 }
 
-// Pairs a version stands for: those of the join that made it, as made or without the deferred
-// ones.
-std::int64_t version_pairs(const TreeMap& map, bool alternative) {
-  if (!map.alternative) return 0;
-  return static_cast<std::int64_t>(alternative ? map.alternative->ids.merged.size()
-                                               : map.alternative->made_ids.merged.size());
+TreeMap version_of(const TreeMap& map, int version) {
+  if (version == 0) return map;
+  const JoinAlternative::Version& alternative = map.alternative->versions[static_cast<std::size_t>(version - 1)];
+  return TreeMap{alternative.map, alternative.tentative, nullptr};
 }
+
+// Pairs a version stands for: those of the join that made it, as made or without the ones
+// that version leaves out.
+std::int64_t version_pairs(const TreeMap& map, int version) {
+  if (!map.alternative) return 0;
+  return static_cast<std::int64_t>(
+      version == 0 ? map.alternative->made_ids.merged.size()
+                   : map.alternative->versions[static_cast<std::size_t>(version - 1)].ids.merged.size());
+}
+
 
 }  // namespace
 
@@ -27,16 +35,14 @@ DecidingJoin::DecidingJoin(TreeMap first, TreeMap second, MakeJoin make_join, in
     : first_(std::move(first)), second_(std::move(second)), make_join_(std::move(make_join)),
       weak_pairings_(weak_pairings) {
   // The versions as made first: a tie keeps them.
-  for (const bool first_alternative : {false, true}) {
-    if (first_alternative && !first_.alternative) continue;
-    for (const bool second_alternative : {false, true}) {
-      if (second_alternative && !second_.alternative) continue;
-      candidates_.push_back(Candidate{first_alternative, second_alternative, nullptr});
+  for (int first_version = 0; first_version < num_versions(first_); ++first_version) {
+    for (int second_version = 0; second_version < num_versions(second_); ++second_version) {
+      candidates_.push_back(Candidate{first_version, second_version, nullptr});
     }
   }
   for (Candidate& candidate : candidates_) {
-    candidate.join = make_join_(candidate.first_alternative ? alternative_version(first_) : first_,
-                                candidate.second_alternative ? alternative_version(second_) : second_, nullptr);
+    candidate.join = make_join_(version_of(first_, candidate.first_version),
+                                version_of(second_, candidate.second_version), nullptr);
   }
   // Nothing to decide: the join runs exactly as a plain MapJoin would.
   if (candidates_.size() == 1) choose();
@@ -58,12 +64,12 @@ std::int64_t DecidingJoin::step(std::int64_t budget) {
     }
     case Phase::Join: {
       const std::int64_t spent = chosen_->step(budget);
-      if (chosen_->done()) start_alternative();
+      if (chosen_->done()) start_alternatives();
       return spent;
     }
     case Phase::Alternative: {
-      const std::int64_t spent = alternative_->step(budget);
-      if (alternative_->done()) phase_ = Phase::Done;
+      const std::int64_t spent = alternatives_.back()->step(budget);
+      if (alternatives_.back()->done()) start_next_alternative();
       return spent;
     }
     case Phase::Done:
@@ -83,7 +89,7 @@ std::int64_t DecidingJoin::remaining_work() const {
     case Phase::Join:
       return chosen_->remaining_work();
     case Phase::Alternative:
-      return alternative_->remaining_work();
+      return alternatives_.back()->remaining_work();
     case Phase::Done:
       break;
   }
@@ -96,8 +102,8 @@ void DecidingJoin::choose() {
   for (std::size_t k = 0; k < candidates_.size(); ++k) {
     const Candidate& candidate = candidates_[k];
     const std::int64_t pairs = static_cast<std::int64_t>(candidate.join->pairs().size()) +
-                               version_pairs(first_, candidate.first_alternative) +
-                               version_pairs(second_, candidate.second_alternative);
+                               version_pairs(first_, candidate.first_version) +
+                               version_pairs(second_, candidate.second_version);
     if (pairs > best_pairs) {
       best_pairs = pairs;
       best = k;
@@ -108,17 +114,17 @@ void DecidingJoin::choose() {
     discarded_work_units_ += candidates_[k].join->report().work_units;
     discarded_seconds_ += candidates_[k].join->report().seconds_total;
   }
-  took_first_ = candidates_[best].first_alternative;
-  took_second_ = candidates_[best].second_alternative;
-  first_version_ = took_first_ ? alternative_version(first_) : first_;
-  second_version_ = took_second_ ? alternative_version(second_) : second_;
+  took_first_ = candidates_[best].first_version;
+  took_second_ = candidates_[best].second_version;
+  first_version_ = version_of(first_, took_first_);
+  second_version_ = version_of(second_, took_second_);
   chosen_ = std::move(candidates_[best].join);
   candidates_.clear();
   phase_ = chosen_->done() ? Phase::Done : Phase::Join;
-  if (phase_ == Phase::Done) start_alternative();
+  if (phase_ == Phase::Done) start_alternatives();
 }
 
-void DecidingJoin::start_alternative() {
+void DecidingJoin::start_alternatives() {
   phase_ = Phase::Done;
   const Pairs& pairs = chosen_->pairs();
   if (weak_pairings_ <= 0 || pairs.empty() || static_cast<int>(pairs.size()) > weak_pairings_) return;
@@ -136,35 +142,61 @@ void DecidingJoin::start_alternative() {
     }
   }
   if (kept->size() == pairs.size()) return;
-  deferred_pairs_ = static_cast<int>(pairs.size() - kept->size());
-  alternative_ = make_join_(first_version_, second_version_, std::move(kept));
-  phase_ = alternative_->done() ? Phase::Done : Phase::Alternative;
+  // The versions, in order: without the pairs that have a feature seen once (unless that is
+  // all of them), then without any pair. The pairs without such a feature can be wrong too,
+  // and only the version without any pair lets the next join show it; the tighter version,
+  // tried before it, keeps it from winning by the chance pairs a looser map collects where
+  // only the pairs of features seen once were wrong.
+  if (!kept->empty()) alternative_pairs_.push_back(std::move(kept));
+  alternative_pairs_.push_back(std::make_shared<const Pairs>());
+  deferred_pairs_ = static_cast<int>(pairs.size());
+  start_next_alternative();
+}
+
+void DecidingJoin::start_next_alternative() {
+  phase_ = Phase::Done;
+  if (alternatives_.size() == alternative_pairs_.size()) return;
+  alternatives_.push_back(make_join_(first_version_, second_version_, alternative_pairs_[alternatives_.size()]));
+  phase_ = Phase::Alternative;
+  if (alternatives_.back()->done()) start_next_alternative();
 }
 
 JoinReport DecidingJoin::report() const {
   JoinReport report = chosen_->report();
-  report.work_units += discarded_work_units_ + (alternative_ ? alternative_->report().work_units : 0);
-  report.seconds_total += discarded_seconds_ + (alternative_ ? alternative_->report().seconds_total : 0.0);
+  report.work_units += discarded_work_units_;
+  report.seconds_total += discarded_seconds_;
+  for (const auto& alternative : alternatives_) {
+    report.work_units += alternative->report().work_units;
+    report.seconds_total += alternative->report().seconds_total;
+  }
   report.deferred_pairings = deferred_pairs_;
-  report.alternatives_taken = (took_first_ ? 1 : 0) + (took_second_ ? 1 : 0);
+  report.alternatives_taken = (took_first_ > 0 ? 1 : 0) + (took_second_ > 0 ? 1 : 0);
   return report;
 }
 
 DecidedJoin DecidingJoin::take_result(const TentativeOfJoin& tentative_of) {
   DecidedJoin decided;
-  for (const auto& [input, took] : {std::pair<const TreeMap*, bool>{&first_, took_first_},
-                                    std::pair<const TreeMap*, bool>{&second_, took_second_}}) {
-    if (input->alternative) decided.settled.push_back(took ? input->alternative->ids : input->alternative->made_ids);
+  for (const auto& [input, took] : {std::pair<const TreeMap*, int>{&first_, took_first_},
+                                    std::pair<const TreeMap*, int>{&second_, took_second_}}) {
+    if (input->alternative) {
+      decided.settled.push_back(took == 0 ? input->alternative->made_ids
+                                          : input->alternative->versions[static_cast<std::size_t>(took - 1)].ids);
+    }
   }
   const JoinIds made_ids = join_ids(*chosen_);
   decided.tentative = tentative_of(first_version_, second_version_, *chosen_);
   decided.map = std::make_shared<GaussianMap>(chosen_->take_result());
-  if (alternative_) {
+  if (!alternatives_.empty()) {
     auto alternative = std::make_shared<JoinAlternative>();
     alternative->made_ids = made_ids;
-    alternative->ids = join_ids(*alternative_);
-    alternative->tentative = tentative_of(first_version_, second_version_, *alternative_);
-    alternative->map = std::make_shared<const GaussianMap>(alternative_->take_result());
+    for (std::size_t k = 0; k < alternatives_.size(); ++k) {
+      MapJoin& join = *alternatives_[k];
+      JoinAlternative::Version version;
+      version.ids = join_ids(join);
+      version.tentative = tentative_of(first_version_, second_version_, join);
+      version.map = std::make_shared<const GaussianMap>(join.take_result());
+      alternative->versions.push_back(std::move(version));
+    }
     decided.alternative = std::move(alternative);
   } else {
     decided.settled.push_back(made_ids);

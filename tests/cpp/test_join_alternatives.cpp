@@ -53,15 +53,19 @@ void expect_bitwise(const GaussianMap& a, const GaussianMap& b) {
   EXPECT_TRUE(a.P() == b.P());
 }
 
-// A tree map holding `made` with an alternative version `alternative` (its ids as a join
-// would have recorded them: `merged` pairs for each version).
-TreeMap with_alternative(std::shared_ptr<const GaussianMap> made, std::size_t made_pairs,
-                         std::shared_ptr<const GaussianMap> alternative, std::size_t alternative_pairs) {
-  auto alt = std::make_shared<JoinAlternative>();
-  alt->made_ids.merged.assign(made_pairs, {1000, 1001});
-  alt->map = std::move(alternative);
-  alt->ids.merged.assign(alternative_pairs, {2000, 2001});
-  return TreeMap{std::move(made), {}, std::move(alt)};
+// A tree map holding `versions[0]` with the others as its alternative's versions, each with
+// `pairs[k]` pairs recorded as a join would have recorded them.
+TreeMap with_versions(const std::vector<std::shared_ptr<const GaussianMap>>& versions,
+                      const std::vector<std::size_t>& pairs) {
+  auto alternative = std::make_shared<JoinAlternative>();
+  alternative->made_ids.merged.assign(pairs[0], {1000, 1001});
+  for (std::size_t k = 1; k < versions.size(); ++k) {
+    JoinAlternative::Version version;
+    version.map = versions[k];
+    version.ids.merged.assign(pairs[k], {2000 + static_cast<std::int64_t>(k), 2001});
+    alternative->versions.push_back(std::move(version));
+  }
+  return TreeMap{versions[0], {}, std::move(alternative)};
 }
 
 TEST(DecidingJoin, WithoutAlternativesItIsThePlainJoinInAnySlices) {
@@ -85,47 +89,51 @@ TEST(DecidingJoin, WithoutAlternativesItIsThePlainJoinInAnySlices) {
 
 TEST(DecidingJoin, TakesTheCombinationWithTheMostPairsInAll) {
   std::mt19937_64 rng(11);
-  int took_an_alternative = 0;
-  for (int trial = 0; trial < 40; ++trial) {
-    const auto first_made = shared_random_map(rng, some_ids(rng, 10, 24));
-    const auto first_alt = shared_random_map(rng, some_ids(rng, 11, 24));
-    const auto second_made = shared_random_map(rng, some_ids(rng, 9, 24));
-    const auto second_alt = shared_random_map(rng, some_ids(rng, 10, 24));
-    std::uniform_int_distribution<std::size_t> pairs(0, 6);
-    const std::size_t pairs_first_made = pairs(rng), pairs_first_alt = pairs(rng);
-    const std::size_t pairs_second_made = pairs(rng), pairs_second_alt = pairs(rng);
-    const TreeMap first = with_alternative(first_made, pairs_first_made, first_alt, pairs_first_alt);
-    const TreeMap second = with_alternative(second_made, pairs_second_made, second_alt, pairs_second_alt);
-    // Brute force, the versions as made first and a tie keeping the earlier combination.
-    std::size_t best_total = 0;
-    bool best_first = false, best_second = false, any = false;
-    for (const bool a : {false, true}) {
-      for (const bool b : {false, true}) {
-        const std::size_t total = shared_ids(a ? *first_alt : *first_made, b ? *second_alt : *second_made) +
-                                  (a ? pairs_first_alt : pairs_first_made) + (b ? pairs_second_alt : pairs_second_made);
-        if (!any || total > best_total) {
+  int took_an_alternative = 0, took_a_second_version = 0;
+  for (int trial = 0; trial < 60; ++trial) {
+    // Each input: as made and one or two other versions.
+    std::uniform_int_distribution<int> other_versions(1, 2);
+    std::uniform_int_distribution<int> size(8, 11);
+    std::uniform_int_distribution<std::size_t> some_pairs(0, 6);
+    std::vector<std::shared_ptr<const GaussianMap>> firsts, seconds;
+    std::vector<std::size_t> first_pairs, second_pairs;
+    for (int k = other_versions(rng); k >= 0; --k) {
+      firsts.push_back(shared_random_map(rng, some_ids(rng, size(rng), 24)));
+      first_pairs.push_back(some_pairs(rng));
+    }
+    for (int k = other_versions(rng); k >= 0; --k) {
+      seconds.push_back(shared_random_map(rng, some_ids(rng, size(rng), 24)));
+      second_pairs.push_back(some_pairs(rng));
+    }
+    // Brute force, the versions in order (as made first) and a tie keeping the earlier.
+    std::size_t best_total = 0, best_first = 0, best_second = 0;
+    for (std::size_t a = 0; a < firsts.size(); ++a) {
+      for (std::size_t b = 0; b < seconds.size(); ++b) {
+        const std::size_t total = shared_ids(*firsts[a], *seconds[b]) + first_pairs[a] + second_pairs[b];
+        if ((a == 0 && b == 0) || total > best_total) {
           best_total = total;
           best_first = a;
           best_second = b;
-          any = true;
         }
       }
     }
-    DecidingJoin join(first, second, by_id(), 0);
+    DecidingJoin join(with_versions(firsts, first_pairs), with_versions(seconds, second_pairs), by_id(), 0);
     join.finish();
-    EXPECT_EQ(join.took_first_alternative(), best_first) << "trial " << trial;
-    EXPECT_EQ(join.took_second_alternative(), best_second) << "trial " << trial;
-    EXPECT_EQ(join.report().alternatives_taken, (best_first ? 1 : 0) + (best_second ? 1 : 0));
-    took_an_alternative += best_first || best_second ? 1 : 0;
+    EXPECT_EQ(join.first_version_taken(), static_cast<int>(best_first)) << "trial " << trial;
+    EXPECT_EQ(join.second_version_taken(), static_cast<int>(best_second)) << "trial " << trial;
+    EXPECT_EQ(join.report().alternatives_taken, (best_first > 0 ? 1 : 0) + (best_second > 0 ? 1 : 0));
+    took_an_alternative += best_first > 0 || best_second > 0 ? 1 : 0;
+    took_a_second_version += best_first == 2 || best_second == 2 ? 1 : 0;
     DecidedJoin decided = join.take_result(none);
-    expect_bitwise(*decided.map, join_maps(best_first ? *first_alt : *first_made,
-                                           best_second ? *second_alt : *second_made, JoinOptions()));
+    expect_bitwise(*decided.map, join_maps(*firsts[best_first], *seconds[best_second], JoinOptions()));
     // The ids of both inputs' chosen versions, then its own.
     ASSERT_EQ(decided.settled.size(), 3u);
-    EXPECT_EQ(decided.settled[0].merged.size(), best_first ? pairs_first_alt : pairs_first_made);
-    EXPECT_EQ(decided.settled[1].merged.size(), best_second ? pairs_second_alt : pairs_second_made);
+    EXPECT_EQ(decided.settled[0].merged.size(), first_pairs[best_first]);
+    EXPECT_EQ(decided.settled[1].merged.size(), second_pairs[best_second]);
   }
-  EXPECT_GT(took_an_alternative, 5);  // the cases are not all decided one way
+  // The cases are not all decided one way.
+  EXPECT_GT(took_an_alternative, 10);
+  EXPECT_GT(took_a_second_version, 5);
 }
 
 TEST(DecidingJoin, AWeakJoinsAlternativeLeavesOutThePairsOfFeaturesSeenOnce) {
@@ -144,26 +152,55 @@ TEST(DecidingJoin, AWeakJoinsAlternativeLeavesOutThePairsOfFeaturesSeenOnce) {
 
   DecidingJoin weak(first, second, by_id(), 4);
   weak.finish();
-  EXPECT_EQ(weak.report().deferred_pairings, 2);
+  EXPECT_EQ(weak.report().deferred_pairings, 4);
   DecidedJoin decided = weak.take_result(none);
   expect_bitwise(*decided.map, join_maps(*m1, *m2, JoinOptions()));
   EXPECT_TRUE(decided.settled.empty());  // its decision waits
   ASSERT_NE(decided.alternative, nullptr);
   EXPECT_EQ(decided.alternative->made_ids.merged.size(), 4u);
-  // Oracle: the join by id with the second map's 5 and 8 renamed, so that only 3 and 7 pair.
+  ASSERT_EQ(decided.alternative->versions.size(), 2u);
+  // Oracles: the join by id with some of the second map's ids renamed apart: 5 and 8, so that
+  // only 3 and 7 pair; then all four, so that nothing pairs.
+  const std::vector<std::set<std::int64_t>> renamed_apart = {{5, 8}, {3, 5, 7, 8}};
+  const std::vector<std::set<std::pair<std::int64_t, std::int64_t>>> expected_merged = {{{3, 3}, {7, 7}}, {}};
+  for (std::size_t v = 0; v < 2; ++v) {
+    const JoinAlternative::Version& version = decided.alternative->versions[v];
+    GaussianMap renamed = *m2;
+    for (std::int64_t& id : renamed.ids()) id = renamed_apart[v].count(id) ? id + 100 : id;
+    const GaussianMap oracle = join_maps(*m1, renamed, JoinOptions());
+    const GaussianMap& alternative = *version.map;
+    ASSERT_EQ(alternative.dim(), oracle.dim());
+    EXPECT_TRUE(alternative.x() == oracle.x());
+    EXPECT_TRUE(alternative.P() == oracle.P());
+    std::vector<std::int64_t> expected_ids = oracle.ids();
+    for (std::int64_t& id : expected_ids) id = renamed_apart[v].count(id - 100) ? id - 100 : id;
+    EXPECT_EQ(alternative.ids(), expected_ids);
+    const std::set<std::pair<std::int64_t, std::int64_t>> merged(version.ids.merged.begin(), version.ids.merged.end());
+    EXPECT_EQ(merged, expected_merged[v]);
+  }
+}
+
+TEST(DecidingJoin, WhenEveryPairHasAFeatureSeenOnceTheOnlyOtherVersionHasNoPair) {
+  std::mt19937_64 rng(6);
+  const auto m1 = shared_random_map(rng, {1, 2, 3, 4, 5});
+  const auto m2 = shared_random_map(rng, {3, 5, 9});
+  const TreeMap first{m1, {TentativeFeature{3, 0, false, false}}, nullptr};
+  const TreeMap second{m2, {TentativeFeature{5, 1, false, false}}, nullptr};
+  DecidingJoin weak(first, second, by_id(), 30);
+  weak.finish();
+  EXPECT_EQ(weak.report().deferred_pairings, 2);
+  DecidedJoin decided = weak.take_result(none);
+  ASSERT_NE(decided.alternative, nullptr);
+  ASSERT_EQ(decided.alternative->versions.size(), 1u);
+  const JoinAlternative::Version& version = decided.alternative->versions[0];
+  EXPECT_TRUE(version.ids.merged.empty());
+  EXPECT_EQ(version.map->num_features(), 8);
+  // A join without any pair stacks the two maps: the oracle renames the second map's ids apart.
   GaussianMap renamed = *m2;
-  for (std::int64_t& id : renamed.ids()) id = id == 5 ? 105 : id == 8 ? 108 : id;
+  for (std::int64_t& id : renamed.ids()) id += 100;
   const GaussianMap oracle = join_maps(*m1, renamed, JoinOptions());
-  const GaussianMap& alternative = *decided.alternative->map;
-  ASSERT_EQ(alternative.dim(), oracle.dim());
-  EXPECT_TRUE(alternative.x() == oracle.x());
-  EXPECT_TRUE(alternative.P() == oracle.P());
-  std::vector<std::int64_t> expected_ids = oracle.ids();
-  for (std::int64_t& id : expected_ids) id = id == 105 ? 5 : id == 108 ? 8 : id;
-  EXPECT_EQ(alternative.ids(), expected_ids);
-  const std::set<std::pair<std::int64_t, std::int64_t>> merged(decided.alternative->ids.merged.begin(),
-                                                               decided.alternative->ids.merged.end());
-  EXPECT_EQ(merged, (std::set<std::pair<std::int64_t, std::int64_t>>{{3, 3}, {7, 7}}));
+  EXPECT_TRUE(version.map->x() == oracle.x());
+  EXPECT_TRUE(version.map->P() == oracle.P());
 }
 
 }  // namespace

@@ -4,12 +4,13 @@
 //
 // A D&C join that pairs few features decides on little evidence, and one wrong pair between
 // features seen once bends both maps: the next, larger join then finds its true pairs
-// incompatible, and the landmarks of a whole lap end up duplicated. Such a weak join keeps a
-// second version of its result, the same pairs less those with a feature seen once (the
-// deferred pairs). The next join sees much more of the map: it runs its association on each
-// combination of its inputs' versions and joins the one that makes the most pairs in all, its
-// own and those of the versions it takes (a tie keeps the versions as made). Until then the
-// ids of neither version are recorded.
+// incompatible, and the landmarks of a whole lap end up duplicated. Such a weak join (one with
+// a pair of a feature seen once) keeps two more versions of its result: its pairs less those
+// with a feature seen once, and none of its pairs. The next join sees much more of the map:
+// it runs its association on each combination of its inputs' versions and joins the one that
+// makes the most pairs in all, its own and those of the versions it takes (a tie keeps the
+// tighter versions: as made, then less the pairs of features seen once). Until then the ids
+// of no version are recorded.
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -32,12 +33,16 @@ struct JoinIds {
 };
 JoinIds join_ids(const MapJoin& join);
 
-// The second version of a weak join's result.
+// The other versions of a weak join's result: without the pairs that have a feature seen
+// once (unless that is all of them), then without any pair.
 struct JoinAlternative {
+  struct Version {
+    std::shared_ptr<const GaussianMap> map;
+    std::vector<TentativeFeature> tentative;
+    JoinIds ids;
+  };
   JoinIds made_ids;  // of the join as made (the version the tree holds)
-  std::shared_ptr<const GaussianMap> map;
-  std::vector<TentativeFeature> tentative;
-  JoinIds ids;
+  std::vector<Version> versions;
 };
 
 // A map of the join tree as the next join takes it.
@@ -87,12 +92,14 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
   // Valid once done(). The versions joined:
   const TreeMap& first() const { return first_version_; }
   const TreeMap& second() const { return second_version_; }
-  bool took_first_alternative() const { return took_first_; }
-  bool took_second_alternative() const { return took_second_; }
-  // The chosen join, and the join of the alternative (null unless the join was weak).
+  // The version of each input taken: 0 as made, k > 0 its alternative's versions[k - 1].
+  int first_version_taken() const { return took_first_; }
+  int second_version_taken() const { return took_second_; }
+  bool took_first_alternative() const { return took_first_ > 0; }
+  bool took_second_alternative() const { return took_second_ > 0; }
+  // The chosen join.
   MapJoin& join() { return *chosen_; }
   const MapJoin& join() const { return *chosen_; }
-  MapJoin* alternative_join() { return alternative_.get(); }
   // The chosen join's report, with the work and time of the candidates not chosen and of the
   // alternative added, and the decision's own counts.
   JoinReport report() const;
@@ -102,11 +109,12 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
  private:
   enum class Phase { Choose, Join, Alternative, Done };
   struct Candidate {
-    bool first_alternative = false, second_alternative = false;
+    int first_version = 0, second_version = 0;
     std::unique_ptr<MapJoin> join;
   };
   void choose();
-  void start_alternative();
+  void start_alternatives();
+  void start_next_alternative();
 
   TreeMap first_, second_;
   MakeJoin make_join_;
@@ -114,9 +122,12 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
   Phase phase_ = Phase::Choose;
   std::vector<Candidate> candidates_;
   std::unique_ptr<MapJoin> chosen_;
-  std::unique_ptr<MapJoin> alternative_;
+  // The pairs each version of a weak join's alternative imposes, and their joins (the one
+  // under way last).
+  std::vector<std::shared_ptr<const Pairs>> alternative_pairs_;
+  std::vector<std::unique_ptr<MapJoin>> alternatives_;
   TreeMap first_version_, second_version_;
-  bool took_first_ = false, took_second_ = false;
+  int took_first_ = 0, took_second_ = 0;
   int deferred_pairs_ = 0;
   std::int64_t discarded_work_units_ = 0;
   double discarded_seconds_ = 0.0;
