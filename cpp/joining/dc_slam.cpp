@@ -24,6 +24,11 @@ namespace {
 // truth at every join gives, so the joins of two to four local maps do not decide a run
 // (docs/data_association.md, "Which joins decide"), and there every join would be weak.
 constexpr int kMinWeakJoinLeaves = 8;
+// A weak join of fewer local maps keeps no version without any pair: on the revisit scenes
+// (20 seeds each) none was taken from a join of 8 local maps, where Victoria Park's weak joins
+// all are, and each costs a fill and the next join's associations (about 7 % of Victoria
+// Park's join work); from 32 on, loop_both_ways loses a seed's gain.
+constexpr int kMinVersionWithoutPairsLeaves = 16;
 
 // Where the re-linearised tree stops: no mean moved by more than this (m or rad) in a pass.
 constexpr double kRelinearisationTolerance = 1e-9;
@@ -537,7 +542,8 @@ std::unique_ptr<DecidingJoin> DCSlam::make_join(const TreeMap& first, const Tree
                                      last_chance(*b.map, b.tentative, first_leaf, last_leaf));
   };
   return std::make_unique<DecidingJoin>(first, second, std::move(make),
-                                        weak_pairings(left.leaves + right.leaves >= kMinWeakJoinLeaves));
+                                        weak_pairings(left.leaves + right.leaves >= kMinWeakJoinLeaves),
+                                        left.leaves + right.leaves >= kMinVersionWithoutPairsLeaves);
 }
 
 int DCSlam::weak_pairings(bool may_be_weak) const {
@@ -766,7 +772,7 @@ Estimate DCSlam::estimate() const {
     const bool last = std::next(it) == stack.rend();
     DecidingJoin join(materialize(**it, aliases, seen_with),
                       TreeMap{std::move(joined), std::move(joined_seen_once), std::move(joined_alternative)},
-                      std::move(make), weak_pairings(!last));
+                      std::move(make), weak_pairings(!last), /*version_without_pairs=*/true);
     try {
       join.finish();  // at most the inputs and the result are alive
     } catch (const std::exception& error) {

@@ -31,9 +31,10 @@ std::int64_t version_pairs(const TreeMap& map, int version) {
 
 }  // namespace
 
-DecidingJoin::DecidingJoin(TreeMap first, TreeMap second, MakeJoin make_join, int weak_pairings)
+DecidingJoin::DecidingJoin(TreeMap first, TreeMap second, MakeJoin make_join, int weak_pairings,
+                           bool version_without_pairs)
     : first_(std::move(first)), second_(std::move(second)), make_join_(std::move(make_join)),
-      weak_pairings_(weak_pairings) {
+      weak_pairings_(weak_pairings), version_without_pairs_(version_without_pairs) {
   // The versions as made first: a tie keeps them.
   for (int first_version = 0; first_version < num_versions(first_); ++first_version) {
     for (int second_version = 0; second_version < num_versions(second_); ++second_version) {
@@ -148,8 +149,8 @@ void DecidingJoin::start_alternatives() {
   // tried before it, keeps it from winning by the chance pairs a looser map collects where
   // only the pairs of features seen once were wrong.
   if (!kept->empty()) alternative_pairs_.push_back(std::move(kept));
-  alternative_pairs_.push_back(std::make_shared<const Pairs>());
-  deferred_pairs_ = static_cast<int>(pairs.size());
+  if (version_without_pairs_ || alternative_pairs_.empty()) alternative_pairs_.push_back(std::make_shared<const Pairs>());
+  deferred_pairs_ = static_cast<int>(pairs.size() - alternative_pairs_.back()->size());
   start_next_alternative();
 }
 

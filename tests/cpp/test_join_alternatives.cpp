@@ -76,7 +76,7 @@ TEST(DecidingJoin, WithoutAlternativesItIsThePlainJoinInAnySlices) {
     JoinOptions options;
     options.block_columns = 4;
     const GaussianMap plain = join_maps(*m1, *m2, options);
-    DecidingJoin join(TreeMap{m1, {}, nullptr}, TreeMap{m2, {}, nullptr}, by_id(4), 0);
+    DecidingJoin join(TreeMap{m1, {}, nullptr}, TreeMap{m2, {}, nullptr}, by_id(4), 0, true);
     std::uniform_int_distribution<std::int64_t> budget(1, 400);
     while (!join.done()) join.advance(budget(rng));
     EXPECT_FALSE(join.took_first_alternative() || join.took_second_alternative());
@@ -117,7 +117,7 @@ TEST(DecidingJoin, TakesTheCombinationWithTheMostPairsInAll) {
         }
       }
     }
-    DecidingJoin join(with_versions(firsts, first_pairs), with_versions(seconds, second_pairs), by_id(), 0);
+    DecidingJoin join(with_versions(firsts, first_pairs), with_versions(seconds, second_pairs), by_id(), 0, true);
     join.finish();
     EXPECT_EQ(join.first_version_taken(), static_cast<int>(best_first)) << "trial " << trial;
     EXPECT_EQ(join.second_version_taken(), static_cast<int>(best_second)) << "trial " << trial;
@@ -146,11 +146,11 @@ TEST(DecidingJoin, AWeakJoinsAlternativeLeavesOutThePairsOfFeaturesSeenOnce) {
   const TreeMap first{m1, {TentativeFeature{5, 0, false, false}}, nullptr};
   const TreeMap second{m2, {TentativeFeature{8, 1, false, false}}, nullptr};
 
-  DecidingJoin strong(first, second, by_id(), 3);  // 4 pairs: more than 3, not weak
+  DecidingJoin strong(first, second, by_id(), 3, true);  // 4 pairs: more than 3, not weak
   strong.finish();
   EXPECT_EQ(strong.take_result(none).alternative, nullptr);
 
-  DecidingJoin weak(first, second, by_id(), 4);
+  DecidingJoin weak(first, second, by_id(), 4, true);
   weak.finish();
   EXPECT_EQ(weak.report().deferred_pairings, 4);
   DecidedJoin decided = weak.take_result(none);
@@ -178,6 +178,14 @@ TEST(DecidingJoin, AWeakJoinsAlternativeLeavesOutThePairsOfFeaturesSeenOnce) {
     const std::set<std::pair<std::int64_t, std::int64_t>> merged(version.ids.merged.begin(), version.ids.merged.end());
     EXPECT_EQ(merged, expected_merged[v]);
   }
+  // A join too small for the version without any pair keeps the other one only.
+  DecidingJoin small(first, second, by_id(), 4, /*version_without_pairs=*/false);
+  small.finish();
+  EXPECT_EQ(small.report().deferred_pairings, 2);
+  const DecidedJoin small_decided = small.take_result(none);
+  ASSERT_NE(small_decided.alternative, nullptr);
+  ASSERT_EQ(small_decided.alternative->versions.size(), 1u);
+  EXPECT_EQ(small_decided.alternative->versions[0].ids.merged.size(), 2u);
 }
 
 TEST(DecidingJoin, WhenEveryPairHasAFeatureSeenOnceTheOnlyOtherVersionHasNoPair) {
@@ -186,7 +194,7 @@ TEST(DecidingJoin, WhenEveryPairHasAFeatureSeenOnceTheOnlyOtherVersionHasNoPair)
   const auto m2 = shared_random_map(rng, {3, 5, 9});
   const TreeMap first{m1, {TentativeFeature{3, 0, false, false}}, nullptr};
   const TreeMap second{m2, {TentativeFeature{5, 1, false, false}}, nullptr};
-  DecidingJoin weak(first, second, by_id(), 30);
+  DecidingJoin weak(first, second, by_id(), 30, /*version_without_pairs=*/false);
   weak.finish();
   EXPECT_EQ(weak.report().deferred_pairings, 2);
   DecidedJoin decided = weak.take_result(none);

@@ -77,8 +77,9 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
 
   // `weak_pairings`: the join keeps an alternative when it makes at most this many pairs and
   // some of them have a feature seen once (listed as tentative by either version it joins);
-  // 0: never, its result is final.
-  DecidingJoin(TreeMap first, TreeMap second, MakeJoin make_join, int weak_pairings);
+  // 0: never, its result is final. `version_without_pairs`: the alternative includes the
+  // version without any pair (it always does when every pair has a feature seen once).
+  DecidingJoin(TreeMap first, TreeMap second, MakeJoin make_join, int weak_pairings, bool version_without_pairs);
   ~DecidingJoin();
   DecidingJoin(const DecidingJoin&) = delete;
   DecidingJoin& operator=(const DecidingJoin&) = delete;
@@ -119,6 +120,7 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
   TreeMap first_, second_;
   MakeJoin make_join_;
   int weak_pairings_;
+  bool version_without_pairs_;
   Phase phase_ = Phase::Choose;
   std::vector<Candidate> candidates_;
   std::unique_ptr<MapJoin> chosen_;
