@@ -40,7 +40,7 @@ bool impose_equal_features(GaussianMap& map, Index a, Index b) {
   map.x().noalias() -= W * whitened;
   map.x()(2) = wrap_angle(map.x()(2));
   P.selfadjointView<Eigen::Lower>().rankUpdate(W, -1.0);
-  P.triangularView<Eigen::StrictlyUpper>() = P.transpose();
+  map.mirror_lower_triangle();
   return true;
 }
 

@@ -9,6 +9,23 @@ namespace dcslam {
 
 GaussianMap::GaussianMap() : x_(Eigen::VectorXd::Zero(32)), P_(Eigen::MatrixXd::Zero(32, 32)) {}
 
+void GaussianMap::mirror_lower_triangle() {
+  auto P = this->P();
+  const Index n = P.rows();
+  // Square tiles keep both the read (column-major, lower) and the write (upper) cache-friendly.
+  constexpr Index kTile = 64;
+  for (Index j0 = 0; j0 < n; j0 += kTile) {
+    const Index width = std::min(kTile, n - j0);
+    for (Index j = j0; j < j0 + width; ++j) {
+      for (Index i = j0; i < j; ++i) P(i, j) = P(j, i);
+    }
+    for (Index i0 = j0 + width; i0 < n; i0 += kTile) {
+      const Index height = std::min(kTile, n - i0);
+      P.block(j0, i0, width, height) = P.block(i0, j0, height, width).transpose();
+    }
+  }
+}
+
 namespace {
 void require_no_poses(Eigen::Index poses, const char* function) {
   if (poses > 0) {

@@ -67,6 +67,11 @@ class GaussianMap {
   // Throws on a map holding past poses.
   Index swap_remove_feature(Index k);
 
+  // Copies P's lower triangle onto its upper one, for updates that write only the lower one
+  // (a symmetric rank update). In square tiles: the plain transposed copy of the whole
+  // triangle runs at a fraction of the speed on maps of hundreds of features.
+  void mirror_lower_triangle();
+
   // Hands the covariance over (moved, without a copy, when the storage fits exactly) and
   // leaves the map empty: for the last use of a map, such as turning it into an Estimate.
   Eigen::MatrixXd release_covariance();

@@ -93,8 +93,6 @@ class EkfSlam : public SlamFilter {
   // Appends measurement z (noise R, symmetric) as a feature initialised from the current robot;
   // returns its index.
   Index add_feature(const Vec2& z, const Mat2& R, std::int64_t id);
-  // Copies the lower triangle of P onto the upper one.
-  void mirror_lower_triangle();
   // The spurious-measurement policy (docs/data_association.md) applies in this filter.
   bool tentative_policy() const;
   // Removes the tentative features for which `expired` holds, in O(n) each.
