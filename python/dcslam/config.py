@@ -87,10 +87,10 @@ class SlamConfig:
             pairwise recall by 0.01-0.02 at a precision cost of about 0.001
             (docs/data_association.md, "Duplicates merged in D&C's estimate").
         weak_join_pairings: D&C only: a join of 8 local maps or more that makes at most this
-            many pairs (>= 0) is weak: it also builds its result without its pairs that
-            have a feature seen once, and the next join (or the final fold of
-            :meth:`~dcslam.DCSlam.estimate`) joins whichever version lets it make more pairs
-            in all, its own and the weak join's. One wrong pair between features seen once
+            many pairs (>= 0), some of them with a feature seen once, is weak: it also builds
+            its result without those pairs and, from 16 local maps, without any pair, and
+            the next join (or the final fold of :meth:`~dcslam.DCSlam.estimate`) joins the
+            versions that let it make the most pairs in all, its own and the weak join's. One wrong pair between features seen once
             at such a join bends both maps, and the next join then duplicates a whole lap's
             landmarks. 30 (default) by measurement on the simulator's revisit scenes; 0:
             off, every join's pairs are final when made (docs/data_association.md, "Weak
