@@ -15,18 +15,25 @@ Usage (from the worktree root, after ``bash tools/setup.sh``):
     .venv/bin/python tools/result_fingerprint.py --compare before.npz after.npz
 
 ``--seeds N`` (default 4) simulator seeds a scene; ``--quick`` one small scene, seed 0, no
-Victoria Park (seconds, for a test of the tool itself).
+Victoria Park (seconds, for a test of the tool itself); ``--set FIELD=VALUE`` (repeatable)
+overrides a SlamConfig field in every run, to fingerprint a configuration other than the
+default (values read as JSON, else as strings, as ``benchmarks/revisit_association.py``
+reads them).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import pathlib
 import sys
 
 import numpy as np
 
 import dcslam
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
+from revisit_association import parse_overrides  # noqa: E402
 
 SIMULATED = ("loop", "lawn_mowing", "snail", "straight")  # 600 steps, 10 % clutter
 JOIN_FIELDS = ("step_created", "step_finished", "work_units", "overlap", "pairings", "tries")
@@ -42,16 +49,16 @@ def fingerprint(slam: dcslam.DCSlam, source) -> dict:
                 covariance=estimate.covariance, joins=joins.reshape(-1, len(JOIN_FIELDS)))
 
 
-def runs(seeds: int, quick: bool):
-    """(name, filter, source) of every run."""
-    config = dcslam.SlamConfig(association="jcbb", join_association="rjc")
+def runs(seeds: int, quick: bool, overrides: dict):
+    """(name, filter, source) of every run, each configured with `overrides` on top."""
+    config = dataclasses.replace(dcslam.SlamConfig(association="jcbb", join_association="rjc"), **overrides)
     if quick:
         yield "small_loop_laps/0", dcslam.DCSlam(config), dcslam.revisit_scenario("small_loop_laps", 0)
         return
     vp = dcslam.datasets.victoria_park()
-    yield "vp", dcslam.DCSlam(vp.slam_config()), vp
-    yield "vp_one_shot", dcslam.DCSlam(vp.slam_config(amortize=False)), vp
-    yield "vp_no_feature_sigma", dcslam.DCSlam(vp.slam_config(join_feature_sigma=0.0)), vp
+    yield "vp", dcslam.DCSlam(vp.slam_config(**overrides)), vp
+    yield "vp_one_shot", dcslam.DCSlam(vp.slam_config(**{**overrides, "amortize": False})), vp
+    yield "vp_no_feature_sigma", dcslam.DCSlam(vp.slam_config(**{**overrides, "join_feature_sigma": 0.0})), vp
     for name in (*dcslam.REVISIT_SCENARIOS, *SIMULATED):
         for seed in range(seeds):
             sim = (dcslam.revisit_scenario(name, seed) if name in dcslam.REVISIT_SCENARIOS
@@ -74,6 +81,8 @@ def main(argv=None) -> int:
     parser.add_argument("--compare", nargs=2, metavar=("BEFORE", "AFTER"))
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="a SlamConfig override for every run")
     args = parser.parse_args(argv)
     if args.compare:
         differing = differences(*args.compare)
@@ -82,8 +91,12 @@ def main(argv=None) -> int:
         return 1 if differing else 0
     if not args.output:
         parser.error("give an output .npz, or --compare BEFORE AFTER")
+    overrides = parse_overrides(args.set)
+    unknown = sorted(set(overrides) - {field.name for field in dataclasses.fields(dcslam.SlamConfig)})
+    if unknown:
+        parser.error(f"--set: SlamConfig has no field {', '.join(unknown)}")
     arrays = {}
-    for name, slam, source in runs(args.seeds, args.quick):
+    for name, slam, source in runs(args.seeds, args.quick, overrides):
         for key, value in fingerprint(slam, source).items():
             arrays[f"{name}/{key}"] = value
         print(f"{name}: {len(arrays[f'{name}/landmark_ids'])} landmarks", flush=True)
