@@ -654,6 +654,7 @@ struct CheckpointAccess {
       out.pod<std::uint8_t>(node.alternative != nullptr);
       if (node.alternative) {
         save_join_ids(out, node.alternative->made_ids);
+        out.pod(node.alternative->join_index);
         out.pod(static_cast<std::uint32_t>(node.alternative->versions.size()));
         for (const JoinAlternative::Version& version : node.alternative->versions) {
           save_map(out, *version.map);
@@ -686,6 +687,9 @@ struct CheckpointAccess {
       if (in.flag()) {
         auto alternative = std::make_shared<JoinAlternative>();
         alternative->made_ids = load_join_ids(in);
+        alternative->join_index = in.pod<int>();
+        Reader::require(alternative->join_index >= 0 && static_cast<std::size_t>(alternative->join_index) < tasks.size(),
+                        "a weak join's index beyond the joins made");
         const auto versions = in.pod<std::uint32_t>();
         Reader::require(versions >= 1 && versions <= 2, "a weak join with 1 or 2 other versions");
         for (std::uint32_t k = 0; k < versions; ++k) {

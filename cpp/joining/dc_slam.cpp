@@ -586,11 +586,20 @@ void record_ids(const JoinIds& ids, IdAliases& aliases, SeenWith& seen_with) {
 
 void DCSlam::complete(JoinTask& task) {
   const JoinReport report = task.join->report();
-  DecidedJoin decided = task.join->take_result(tentative_of(*task.left, *task.right));
+  DecidedJoin decided = task.join->take_result(tentative_of(*task.left, *task.right), task.index);
   std::lock_guard<std::mutex> lock(mutex_);
   JoinEvent& event = events_[static_cast<std::size_t>(task.index)];
   event.report = report;
   event.pairing = task.join->join().pairing_record();
+  // A weak input's record lists the pairs of the version this join took.
+  for (const auto& [input, version] : {std::pair<const Node*, int>{task.left.get(), task.join->first_version_taken()},
+                                       std::pair<const Node*, int>{task.right.get(), task.join->second_version_taken()}}) {
+    if (version > 0) {
+      const JoinAlternative& alternative = *input->alternative;
+      events_[static_cast<std::size_t>(alternative.join_index)].pairing.pairs =
+          alternative.versions[static_cast<std::size_t>(version - 1)].ids.record_pairs();
+    }
+  }
   event.step_finished = steps_;
   for (const JoinIds& ids : decided.settled) record_ids(ids, merged_into_, seen_with_);
   const std::shared_ptr<Node> result = task.result.lock();
@@ -699,7 +708,7 @@ TreeMap DCSlam::materialize(const FrozenNode& node, IdAliases& aliases, SeenWith
                           std::to_string(node.step_created) + ") fails: " + error.what() +
                           "; the filter is unchanged until it runs that join (finish_joins() runs it now)");
   }
-  DecidedJoin decided = join->take_result(tentative_of(left, right));
+  DecidedJoin decided = join->take_result(tentative_of(left, right), node.index);
   for (const JoinIds& ids : decided.settled) record_ids(ids, aliases, seen_with);
   return decided.tree_map();
 }
@@ -770,6 +779,7 @@ Estimate DCSlam::estimate() const {
       return std::make_unique<MapJoin>(first.map, second.map, std::move(join_options));
     };
     const bool last = std::next(it) == stack.rend();
+    const std::shared_ptr<const JoinAlternative> previous_alternative = joined_alternative;
     DecidingJoin join(materialize(**it, aliases, seen_with),
                       TreeMap{std::move(joined), std::move(joined_seen_once), std::move(joined_alternative)},
                       std::move(make), weak_pairings(!last), /*version_without_pairs=*/true);
@@ -781,9 +791,18 @@ Estimate DCSlam::estimate() const {
                             "; the filter is unchanged");
     }
     fold.push_back(join.join().pairing_record());
-    DecidedJoin decided = join.take_result([](const TreeMap& first, const TreeMap& second, const MapJoin& made) {
-      return unmatched_tentative(first.tentative, second.tentative, made);
-    });
+    // A weak fold join's record lists the pairs of the version this one took (a real join's
+    // record is corrected only when a real join decides).
+    if (join.second_version_taken() > 0) {
+      const JoinAlternative& alternative = *previous_alternative;
+      fold[static_cast<std::size_t>(-1 - alternative.join_index)].pairs =
+          alternative.versions[static_cast<std::size_t>(join.second_version_taken() - 1)].ids.record_pairs();
+    }
+    DecidedJoin decided = join.take_result(
+        [](const TreeMap& first, const TreeMap& second, const MapJoin& made) {
+          return unmatched_tentative(first.tentative, second.tentative, made);
+        },
+        index);
     for (const JoinIds& ids : decided.settled) record_ids(ids, aliases, seen_with);
     joined = std::move(decided.map);
     joined_seen_once = std::move(decided.tentative);

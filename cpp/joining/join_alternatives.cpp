@@ -7,6 +7,13 @@ namespace dcslam {
 
 JoinIds join_ids(const MapJoin& join) { return JoinIds{join.merged_ids(), join.dropped_ids()}; }
 
+std::vector<std::pair<std::int64_t, std::int64_t>> JoinIds::record_pairs() const {
+  std::vector<std::pair<std::int64_t, std::int64_t>> pairs;
+  pairs.reserve(merged.size());
+  for (const auto& [from, to] : merged) pairs.emplace_back(to, from);
+  return pairs;
+}
+
 namespace {
 
 int num_versions(const TreeMap& map) {
@@ -175,7 +182,7 @@ JoinReport DecidingJoin::report() const {
   return report;
 }
 
-DecidedJoin DecidingJoin::take_result(const TentativeOfJoin& tentative_of) {
+DecidedJoin DecidingJoin::take_result(const TentativeOfJoin& tentative_of, int join_index) {
   DecidedJoin decided;
   for (const auto& [input, took] : {std::pair<const TreeMap*, int>{&first_, took_first_},
                                     std::pair<const TreeMap*, int>{&second_, took_second_}}) {
@@ -190,6 +197,7 @@ DecidedJoin DecidingJoin::take_result(const TentativeOfJoin& tentative_of) {
   if (!alternatives_.empty()) {
     auto alternative = std::make_shared<JoinAlternative>();
     alternative->made_ids = made_ids;
+    alternative->join_index = join_index;
     for (std::size_t k = 0; k < alternatives_.size(); ++k) {
       MapJoin& join = *alternatives_[k];
       JoinAlternative::Version version;

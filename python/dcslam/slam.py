@@ -400,9 +400,9 @@ class DCSlam(SlamFilter):
         ``stats.joins``: dicts with ``first_ids`` and ``second_ids`` (int64 arrays, the two
         maps' features) and ``pairs`` ((k, 2) int64 array of (id in the first map, id in the
         second) matched). Empty arrays while a join is pending. A weak join's ``pairs`` are
-        those it made, its deferred ones included (``stats.joins``' ``deferred_pairings``),
-        also when a later join took its alternative without them (that join's
-        ``alternatives_taken``; ``cfg.weak_join_pairings``). Ids are those ``update()``
+        those it made until a later join decides (``stats.joins``' ``deferred_pairings``),
+        then those of the version that join took (its ``alternatives_taken``;
+        ``cfg.weak_join_pairings``). Ids are those ``update()``
         returned (before ``resolve()``), so a simulator's ids label them; see
         ``studies/duplicate_diagnosis.py --joins``.
 

@@ -80,7 +80,7 @@ TEST(DecidingJoin, WithoutAlternativesItIsThePlainJoinInAnySlices) {
     std::uniform_int_distribution<std::int64_t> budget(1, 400);
     while (!join.done()) join.advance(budget(rng));
     EXPECT_FALSE(join.took_first_alternative() || join.took_second_alternative());
-    DecidedJoin decided = join.take_result(none);
+    DecidedJoin decided = join.take_result(none, 0);
     expect_bitwise(*decided.map, plain);
     EXPECT_EQ(decided.alternative, nullptr);
     ASSERT_EQ(decided.settled.size(), 1u);  // its own ids, recorded at once
@@ -124,7 +124,7 @@ TEST(DecidingJoin, TakesTheCombinationWithTheMostPairsInAll) {
     EXPECT_EQ(join.report().alternatives_taken, (best_first > 0 ? 1 : 0) + (best_second > 0 ? 1 : 0));
     took_an_alternative += best_first > 0 || best_second > 0 ? 1 : 0;
     took_a_second_version += best_first == 2 || best_second == 2 ? 1 : 0;
-    DecidedJoin decided = join.take_result(none);
+    DecidedJoin decided = join.take_result(none, 0);
     expect_bitwise(*decided.map, join_maps(*firsts[best_first], *seconds[best_second], JoinOptions()));
     // The ids of both inputs' chosen versions, then its own.
     ASSERT_EQ(decided.settled.size(), 3u);
@@ -148,12 +148,12 @@ TEST(DecidingJoin, AWeakJoinsAlternativeLeavesOutThePairsOfFeaturesSeenOnce) {
 
   DecidingJoin strong(first, second, by_id(), 3, true);  // 4 pairs: more than 3, not weak
   strong.finish();
-  EXPECT_EQ(strong.take_result(none).alternative, nullptr);
+  EXPECT_EQ(strong.take_result(none, 0).alternative, nullptr);
 
   DecidingJoin weak(first, second, by_id(), 4, true);
   weak.finish();
   EXPECT_EQ(weak.report().deferred_pairings, 4);
-  DecidedJoin decided = weak.take_result(none);
+  DecidedJoin decided = weak.take_result(none, 0);
   expect_bitwise(*decided.map, join_maps(*m1, *m2, JoinOptions()));
   EXPECT_TRUE(decided.settled.empty());  // its decision waits
   ASSERT_NE(decided.alternative, nullptr);
@@ -182,7 +182,7 @@ TEST(DecidingJoin, AWeakJoinsAlternativeLeavesOutThePairsOfFeaturesSeenOnce) {
   DecidingJoin small(first, second, by_id(), 4, /*version_without_pairs=*/false);
   small.finish();
   EXPECT_EQ(small.report().deferred_pairings, 2);
-  const DecidedJoin small_decided = small.take_result(none);
+  const DecidedJoin small_decided = small.take_result(none, 0);
   ASSERT_NE(small_decided.alternative, nullptr);
   ASSERT_EQ(small_decided.alternative->versions.size(), 1u);
   EXPECT_EQ(small_decided.alternative->versions[0].ids.merged.size(), 2u);
@@ -197,7 +197,7 @@ TEST(DecidingJoin, WhenEveryPairHasAFeatureSeenOnceTheOnlyOtherVersionHasNoPair)
   DecidingJoin weak(first, second, by_id(), 30, /*version_without_pairs=*/false);
   weak.finish();
   EXPECT_EQ(weak.report().deferred_pairings, 2);
-  DecidedJoin decided = weak.take_result(none);
+  DecidedJoin decided = weak.take_result(none, 0);
   ASSERT_NE(decided.alternative, nullptr);
   ASSERT_EQ(decided.alternative->versions.size(), 1u);
   const JoinAlternative::Version& version = decided.alternative->versions[0];

@@ -131,3 +131,14 @@ def test_a_wrong_pair_without_a_feature_seen_once_is_taken_back_too():
     # any), and a later join took one of its inputs' other versions.
     assert any(join["leaves"] >= 16 and 0 < join["deferred_pairings"] == join["pairings"] for join in joins)
     assert sum(join["alternatives_taken"] for join in joins) >= 1
+
+
+def test_every_pair_a_join_record_lists_ends_in_one_feature(default_run):
+    """A weak join's record lists the pairs of the version a later join took, not those it
+    made: after estimate() (which decides the weak joins still waiting), every pair listed by
+    join_pairings() and fold_pairings() resolves to one feature."""
+    slam, _, _ = default_run
+    assert slam.stats.counters["alternatives_taken"] >= 1
+    for record in slam.join_pairings() + slam.fold_pairings():
+        pairs = np.array(record["pairs"], dtype=np.int64).reshape(-1, 2)
+        assert np.array_equal(slam.resolve(pairs[:, 0]), slam.resolve(pairs[:, 1]))

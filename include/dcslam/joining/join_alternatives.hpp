@@ -30,6 +30,8 @@ namespace dcslam {
 struct JoinIds {
   std::vector<std::pair<std::int64_t, std::int64_t>> merged;
   std::vector<std::int64_t> dropped;
+  // The pairs as a JoinPairingRecord lists them: (id in m1, id in m2).
+  std::vector<std::pair<std::int64_t, std::int64_t>> record_pairs() const;
 };
 JoinIds join_ids(const MapJoin& join);
 
@@ -43,6 +45,9 @@ struct JoinAlternative {
   };
   JoinIds made_ids;  // of the join as made (the version the tree holds)
   std::vector<Version> versions;
+  // The index its caller gave the weak join (DCSlam: its JoinEvent, or -1 - k for the k-th
+  // join of estimate()'s fold), so that the join that decides can correct its record.
+  int join_index = 0;
 };
 
 // A map of the join tree as the next join takes it.
@@ -104,8 +109,9 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
   // The chosen join's report, with the work and time of the candidates not chosen and of the
   // alternative added, and the decision's own counts.
   JoinReport report() const;
-  // The joined map and the ids it settles. Leaves the join empty (and its inputs released).
-  DecidedJoin take_result(const TentativeOfJoin& tentative_of);
+  // The joined map and the ids it settles; `join_index` names the join to its caller
+  // (JoinAlternative::join_index). Leaves the join empty (and its inputs released).
+  DecidedJoin take_result(const TentativeOfJoin& tentative_of, int join_index);
 
  private:
   enum class Phase { Choose, Join, Alternative, Done };
