@@ -592,12 +592,13 @@ void DCSlam::complete(JoinTask& task) {
   event.report = report;
   event.pairing = task.join->join().pairing_record();
   // A weak input's record lists the pairs of the version this join took.
-  for (const auto& [input, version] : {std::pair<const Node*, int>{task.left.get(), task.join->first_version_taken()},
-                                       std::pair<const Node*, int>{task.right.get(), task.join->second_version_taken()}}) {
+  for (const auto& [input, version] :
+       {std::pair<const Node*, int>{task.left.get(), task.join->first_version_taken()},
+        std::pair<const Node*, int>{task.right.get(), task.join->second_version_taken()}}) {
     if (version > 0) {
       const JoinAlternative& alternative = *input->alternative;
       events_[static_cast<std::size_t>(alternative.join_index)].pairing.pairs =
-          alternative.versions[static_cast<std::size_t>(version - 1)].ids.record_pairs();
+          alternative.ids_of(version).record_pairs();
     }
   }
   event.step_finished = steps_;
@@ -796,7 +797,7 @@ Estimate DCSlam::estimate() const {
     if (join.second_version_taken() > 0) {
       const JoinAlternative& alternative = *previous_alternative;
       fold[static_cast<std::size_t>(-1 - alternative.join_index)].pairs =
-          alternative.versions[static_cast<std::size_t>(join.second_version_taken() - 1)].ids.record_pairs();
+          alternative.ids_of(join.second_version_taken()).record_pairs();
     }
     DecidedJoin decided = join.take_result(
         [](const TreeMap& first, const TreeMap& second, const MapJoin& made) {

@@ -29,12 +29,8 @@ TreeMap version_of(const TreeMap& map, int version) {
 // Pairs a version stands for: those of the join that made it, as made or without the ones
 // that version leaves out.
 std::int64_t version_pairs(const TreeMap& map, int version) {
-  if (!map.alternative) return 0;
-  return static_cast<std::int64_t>(
-      version == 0 ? map.alternative->made_ids.merged.size()
-                   : map.alternative->versions[static_cast<std::size_t>(version - 1)].ids.merged.size());
+  return map.alternative ? static_cast<std::int64_t>(map.alternative->ids_of(version).merged.size()) : 0;
 }
-
 
 }  // namespace
 
@@ -156,7 +152,9 @@ void DecidingJoin::start_alternatives() {
   // tried before it, keeps it from winning by the chance pairs a looser map collects where
   // only the pairs of features seen once were wrong.
   if (!kept->empty()) alternative_pairs_.push_back(std::move(kept));
-  if (version_without_pairs_ || alternative_pairs_.empty()) alternative_pairs_.push_back(std::make_shared<const Pairs>());
+  if (version_without_pairs_ || alternative_pairs_.empty()) {
+    alternative_pairs_.push_back(std::make_shared<const Pairs>());
+  }
   deferred_pairs_ = static_cast<int>(pairs.size() - alternative_pairs_.back()->size());
   start_next_alternative();
 }
@@ -186,10 +184,7 @@ DecidedJoin DecidingJoin::take_result(const TentativeOfJoin& tentative_of, int j
   DecidedJoin decided;
   for (const auto& [input, took] : {std::pair<const TreeMap*, int>{&first_, took_first_},
                                     std::pair<const TreeMap*, int>{&second_, took_second_}}) {
-    if (input->alternative) {
-      decided.settled.push_back(took == 0 ? input->alternative->made_ids
-                                          : input->alternative->versions[static_cast<std::size_t>(took - 1)].ids);
-    }
+    if (input->alternative) decided.settled.push_back(input->alternative->ids_of(took));
   }
   const JoinIds made_ids = join_ids(*chosen_);
   decided.tentative = tentative_of(first_version_, second_version_, *chosen_);

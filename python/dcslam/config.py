@@ -90,9 +90,9 @@ class SlamConfig:
             many pairs (>= 0), some of them with a feature seen once, is weak: it also builds
             its result without those pairs and, from 16 local maps, without any pair, and
             the next join (or the final fold of :meth:`~dcslam.DCSlam.estimate`) joins the
-            versions that let it make the most pairs in all, its own and the weak join's. One wrong pair between features seen once
-            at such a join bends both maps, and the next join then duplicates a whole lap's
-            landmarks. 30 (default) by measurement on the simulator's revisit scenes; 0:
+            versions that let it make the most pairs in all, its own and the weak join's.
+            One wrong pair between features seen once at such a join bends both maps, and
+            the next join then duplicates a whole lap's landmarks. 30 (default) by measurement on the simulator's revisit scenes; 0:
             off, every join's pairs are final when made (docs/data_association.md, "Weak
             joins decided by the next join").
         local_map_features: D&C closes a local map when it holds this many features.

@@ -352,10 +352,10 @@ class DCSlamStats(SlamStats):
             ``features_first``, ``features_second``, ``features_joined``, ``overlap``,
             ``pairings``, ``deferred_pairings`` (a weak join's pairs left to the next join's
             decision, ``cfg.weak_join_pairings``), ``alternatives_taken`` (0-2: inputs of
-            which it joined a version other than the one made), ``tries`` (RJC), ``iterations`` (linearisation points of the
-            constraint update, at most ``cfg.join_iterations``; 0 without pairings),
-            ``seconds`` (summed over the slices it ran in), ``seconds_association``,
-            ``work_units``.
+            which it joined a version other than the one made), ``tries`` (RJC),
+            ``iterations`` (linearisation points of the constraint update, at most
+            ``cfg.join_iterations``; 0 without pairings), ``seconds`` (summed over the
+            slices it ran in), ``seconds_association``, ``work_units``.
         stack: (local maps, features) of each map on the stack, bottom first.
     """
 
@@ -402,8 +402,8 @@ class DCSlam(SlamFilter):
         second) matched). Empty arrays while a join is pending. A weak join's ``pairs`` are
         those it made until a later join decides (``stats.joins``' ``deferred_pairings``),
         then those of the version that join took (its ``alternatives_taken``;
-        ``cfg.weak_join_pairings``). Ids are those ``update()``
-        returned (before ``resolve()``), so a simulator's ids label them; see
+        ``cfg.weak_join_pairings``). Ids are those ``update()`` returned (before
+        ``resolve()``), so a simulator's ids label them; see
         ``studies/duplicate_diagnosis.py --joins``.
 
         With a join oracle set (:meth:`set_join_oracle`), each dict also audits the oracle's

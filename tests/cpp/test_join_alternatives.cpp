@@ -79,7 +79,8 @@ TEST(DecidingJoin, WithoutAlternativesItIsThePlainJoinInAnySlices) {
     DecidingJoin join(TreeMap{m1, {}, nullptr}, TreeMap{m2, {}, nullptr}, by_id(4), 0, true);
     std::uniform_int_distribution<std::int64_t> budget(1, 400);
     while (!join.done()) join.advance(budget(rng));
-    EXPECT_FALSE(join.took_first_alternative() || join.took_second_alternative());
+    EXPECT_EQ(join.first_version_taken(), 0);
+    EXPECT_EQ(join.second_version_taken(), 0);
     DecidedJoin decided = join.take_result(none, 0);
     expect_bitwise(*decided.map, plain);
     EXPECT_EQ(decided.alternative, nullptr);

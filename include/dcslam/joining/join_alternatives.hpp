@@ -45,6 +45,10 @@ struct JoinAlternative {
   };
   JoinIds made_ids;  // of the join as made (the version the tree holds)
   std::vector<Version> versions;
+  // The ids of version `version`: 0 as made, k > 0 versions[k - 1].
+  const JoinIds& ids_of(int version) const {
+    return version == 0 ? made_ids : versions[static_cast<std::size_t>(version - 1)].ids;
+  }
   // The index its caller gave the weak join (DCSlam: its JoinEvent, or -1 - k for the k-th
   // join of estimate()'s fold), so that the join that decides can correct its record.
   int join_index = 0;
@@ -101,8 +105,6 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
   // The version of each input taken: 0 as made, k > 0 its alternative's versions[k - 1].
   int first_version_taken() const { return took_first_; }
   int second_version_taken() const { return took_second_; }
-  bool took_first_alternative() const { return took_first_ > 0; }
-  bool took_second_alternative() const { return took_second_ > 0; }
   // The chosen join.
   MapJoin& join() { return *chosen_; }
   const MapJoin& join() const { return *chosen_; }
