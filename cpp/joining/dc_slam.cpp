@@ -24,11 +24,13 @@ namespace {
 // truth at every join gives, so the joins of two to four local maps do not decide a run
 // (docs/data_association.md, "Which joins decide"), and there every join would be weak.
 constexpr int kMinWeakJoinLeaves = 8;
-// A weak join of fewer local maps keeps no version without any pair: on the revisit scenes
-// (20 seeds each) none was taken from a join of 8 local maps, where Victoria Park's weak joins
-// all are, and each costs a fill and the next join's associations (about 7 % of Victoria
-// Park's join work); from 32 on, loop_both_ways loses a seed's gain.
-constexpr int kMinVersionWithoutPairsLeaves = 16;
+// Joins of at least this many local maps keep the costlier versions: a weak join its version
+// without any pair, a large join its version without its doubtful pairs. On the revisit scenes
+// (20 seeds each) no version without any pair was taken from a join of 8 local maps, where
+// Victoria Park's weak joins all are, and each version costs a fill and the next join's
+// associations (about 7 % of Victoria Park's join work for the weak joins'); from 32 on,
+// loop_both_ways loses a seed's gain.
+constexpr int kManyLocalMaps = 16;
 
 // Where the re-linearised tree stops: no mean moved by more than this (m or rad) in a pass.
 constexpr double kRelinearisationTolerance = 1e-9;
@@ -543,7 +545,7 @@ std::unique_ptr<DecidingJoin> DCSlam::make_join(const TreeMap& first, const Tree
   };
   return std::make_unique<DecidingJoin>(first, second, std::move(make),
                                         weak_pairings(left.leaves + right.leaves >= kMinWeakJoinLeaves),
-                                        left.leaves + right.leaves >= kMinVersionWithoutPairsLeaves);
+                                        left.leaves + right.leaves >= kManyLocalMaps);
 }
 
 int DCSlam::weak_pairings(bool may_be_weak) const {
@@ -783,7 +785,7 @@ Estimate DCSlam::estimate() const {
     const std::shared_ptr<const JoinAlternative> previous_alternative = joined_alternative;
     DecidingJoin join(materialize(**it, aliases, seen_with),
                       TreeMap{std::move(joined), std::move(joined_seen_once), std::move(joined_alternative)},
-                      std::move(make), weak_pairings(!last), /*version_without_pairs=*/true);
+                      std::move(make), weak_pairings(!last), /*spans_many_maps=*/true);
     try {
       join.finish();  // at most the inputs and the result are alive
     } catch (const std::exception& error) {
@@ -878,13 +880,17 @@ const RunStats& DCSlam::stats() const {
   stats_.counters["joins_created"] = static_cast<double>(events_.size());
   stats_.counters["joins_finished"] = static_cast<double>(finished);
   stats_.counters["stack_depth"] = static_cast<double>(stack_.size());
-  // The real joins' weak decisions (join_alternatives.hpp); the final fold's are not counted.
-  double weak_joins = 0.0, alternatives_taken = 0.0;
+  // The real joins' decisions left to the next join (join_alternatives.hpp): weak joins', large
+  // joins' doubtful pairs; the final fold's are not counted.
+  double weak_joins = 0.0, doubtful_joins = 0.0, alternatives_taken = 0.0;
   for (const JoinEvent& event : events_) {
-    weak_joins += event.report.deferred_pairings > 0 ? 1.0 : 0.0;
+    if (event.report.deferred_pairings > 0) {
+      (event.report.pairings > config_.weak_join_pairings ? doubtful_joins : weak_joins) += 1.0;
+    }
     alternatives_taken += event.report.alternatives_taken;
   }
   stats_.counters["weak_joins"] = weak_joins;
+  stats_.counters["doubtful_joins"] = doubtful_joins;
   stats_.counters["alternatives_taken"] = alternatives_taken;
   if (config_.tree_relinearisation > 0) {
     stats_.counters["relinearisation_passes"] = relinearisation_.passes;

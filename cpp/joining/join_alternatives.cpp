@@ -35,9 +35,9 @@ std::int64_t version_pairs(const TreeMap& map, int version) {
 }  // namespace
 
 DecidingJoin::DecidingJoin(TreeMap first, TreeMap second, MakeJoin make_join, int weak_pairings,
-                           bool version_without_pairs)
+                           bool spans_many_maps)
     : first_(std::move(first)), second_(std::move(second)), make_join_(std::move(make_join)),
-      weak_pairings_(weak_pairings), version_without_pairs_(version_without_pairs) {
+      weak_pairings_(weak_pairings), spans_many_maps_(spans_many_maps) {
   // The versions as made first: a tie keeps them.
   for (int first_version = 0; first_version < num_versions(first_); ++first_version) {
     for (int second_version = 0; second_version < num_versions(second_); ++second_version) {
@@ -131,7 +131,11 @@ void DecidingJoin::choose() {
 void DecidingJoin::start_alternatives() {
   phase_ = Phase::Done;
   const Pairs& pairs = chosen_->pairs();
-  if (weak_pairings_ <= 0 || pairs.empty() || static_cast<int>(pairs.size()) > weak_pairings_) return;
+  if (weak_pairings_ <= 0 || pairs.empty()) return;
+  if (static_cast<int>(pairs.size()) > weak_pairings_) {
+    if (spans_many_maps_) start_version_without_doubtful_pairs();
+    return;
+  }
   std::unordered_set<std::int64_t> seen_once;
   for (const TreeMap* version : {&first_version_, &second_version_}) {
     for (const TentativeFeature& feature : version->tentative) seen_once.insert(feature.id);
@@ -152,10 +156,26 @@ void DecidingJoin::start_alternatives() {
   // tried before it, keeps it from winning by the chance pairs a looser map collects where
   // only the pairs of features seen once were wrong.
   if (!kept->empty()) alternative_pairs_.push_back(std::move(kept));
-  if (version_without_pairs_ || alternative_pairs_.empty()) {
+  if (spans_many_maps_ || alternative_pairs_.empty()) {
     alternative_pairs_.push_back(std::make_shared<const Pairs>());
   }
   deferred_pairs_ = static_cast<int>(pairs.size() - alternative_pairs_.back()->size());
+  start_next_alternative();
+}
+
+// A large join's doubtful pairs (a rival candidate nearly as close) are where it is most often
+// wrong, and a wrong pair imposed exactly bends both maps: the next join then finds the true
+// pairs of whole laps incompatible. Without them, the next join shows which was right.
+void DecidingJoin::start_version_without_doubtful_pairs() {
+  const Pairs& pairs = chosen_->pairs();
+  const std::vector<char>& doubtful = chosen_->doubtful();
+  auto kept = std::make_shared<Pairs>();
+  for (std::size_t k = 0; k < pairs.size(); ++k) {
+    if (!doubtful[k]) kept->push_back(pairs[k]);
+  }
+  if (kept->size() == pairs.size() || kept->empty()) return;
+  deferred_pairs_ = static_cast<int>(pairs.size() - kept->size());
+  alternative_pairs_.push_back(std::move(kept));
   start_next_alternative();
 }
 

@@ -267,9 +267,32 @@ void JoinAssociator::conclude(std::vector<int> feature_of) {
     const int i = feature_of[j];
     if (i != kStar) result_.pairs.emplace_back(i, static_cast<Index>(j));
   }
+  mark_doubtful();
   rjc_.reset();
   candidates_ = CandidateLists();
   stage_ = Stage::Done;
+}
+
+// O(candidates): each pair's rivals are the other entries of its m2 feature's list and the
+// other lists that hold its m1 feature.
+void JoinAssociator::mark_doubtful() {
+  std::vector<std::vector<int>> seconds_of(static_cast<std::size_t>(frame_.first().num_features()));
+  for (std::size_t j = 0; j < candidates_.size(); ++j) {
+    for (int i : candidates_[j]) seconds_of[static_cast<std::size_t>(i)].push_back(static_cast<int>(j));
+  }
+  result_.doubtful.assign(result_.pairs.size(), 0);
+  for (std::size_t k = 0; k < result_.pairs.size(); ++k) {
+    const int i = static_cast<int>(result_.pairs[k].first);
+    const int j = static_cast<int>(result_.pairs[k].second);
+    const double rival_below = individual_distance_sq(model_, Pairing{j, i}) + kDoubtfulPairMargin;
+    const auto is_rival = [&](int second, int first) {
+      return individual_distance_sq(model_, Pairing{second, first}) < rival_below;
+    };
+    bool doubtful = false;
+    for (int other : candidates_[static_cast<std::size_t>(j)]) doubtful = doubtful || (other != i && is_rival(j, other));
+    for (int other : seconds_of[static_cast<std::size_t>(i)]) doubtful = doubtful || (other != j && is_rival(other, i));
+    result_.doubtful[k] = doubtful ? 1 : 0;
+  }
 }
 
 std::int64_t JoinAssociator::expected_overlap() const {

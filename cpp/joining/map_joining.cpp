@@ -222,6 +222,7 @@ std::int64_t MapJoin::associate_next(std::int64_t budget) {
     if (!associator_->done()) return spent;
     const JoinAssociationResult& result = associator_->result();
     pairs_ = result.pairs;
+    doubtful_ = result.doubtful;
     for (const JoinTruthAudit& entry : result.truth_audit) {
       pairing_record_.truth_pairs.emplace_back(m1.ids()[static_cast<std::size_t>(entry.first)],
                                                m2.ids()[static_cast<std::size_t>(entry.second)]);
@@ -238,6 +239,7 @@ std::int64_t MapJoin::associate_next(std::int64_t budget) {
     associator_.reset();
     association_frame_.reset();
   }
+  doubtful_.resize(pairs_.size(), 0);
   finish_association();
   phase_ = Phase::Relinearise;
   relinearisation_started_ = false;

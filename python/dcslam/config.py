@@ -92,9 +92,12 @@ class SlamConfig:
             the next join (or the final fold of :meth:`~dcslam.DCSlam.estimate`) joins the
             versions that let it make the most pairs in all, its own and the weak join's.
             One wrong pair between features seen once at such a join bends both maps, and
-            the next join then duplicates a whole lap's landmarks. 30 (default) by measurement on the simulator's revisit scenes; 0:
-            off, every join's pairs are final when made (docs/data_association.md, "Weak
-            joins decided by the next join").
+            the next join then duplicates a whole lap's landmarks. A join of 16 local maps
+            or more that makes more pairs than this keeps its result without its doubtful
+            pairs (a rival candidate nearly as close), decided the same way. 30 (default) by
+            measurement on the simulator's revisit scenes; 0: off, every join's pairs are
+            final when made (docs/data_association.md, "Weak joins decided by the next
+            join" and "Large joins' doubtful pairs, decided by the next join").
         local_map_features: D&C closes a local map when it holds this many features.
         join_association: association at D&C joins: ``"rjc"``, ``"jcbb"`` or ``"known"``.
         rjc_b, rjc_p_good, rjc_p_fail: RJC (Paz et al. 2007, Alg. 3) parameters.

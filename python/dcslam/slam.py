@@ -351,7 +351,7 @@ class DCSlamStats(SlamStats):
             result), ``step_created``, ``step_finished`` (-1 while pending),
             ``features_first``, ``features_second``, ``features_joined``, ``overlap``,
             ``pairings``, ``deferred_pairings`` (a weak join's pairs left to the next join's
-            decision, ``cfg.weak_join_pairings``), ``alternatives_taken`` (0-2: inputs of
+            decision, or a large join's doubtful pairs, ``cfg.weak_join_pairings``), ``alternatives_taken`` (0-2: inputs of
             which it joined a version other than the one made), ``tries`` (RJC),
             ``iterations`` (linearisation points of the constraint update, at most
             ``cfg.join_iterations``; 0 without pairings), ``seconds`` (summed over the
@@ -399,8 +399,9 @@ class DCSlam(SlamFilter):
         """What each real join's association saw and decided, by feature id, in the order of
         ``stats.joins``: dicts with ``first_ids`` and ``second_ids`` (int64 arrays, the two
         maps' features) and ``pairs`` ((k, 2) int64 array of (id in the first map, id in the
-        second) matched). Empty arrays while a join is pending. A weak join's ``pairs`` are
-        those it made until a later join decides (``stats.joins``' ``deferred_pairings``),
+        second) matched). Empty arrays while a join is pending. A weak join's ``pairs`` (and a
+        large join's that kept a version without its doubtful pairs) are those it made until a
+        later join decides (``stats.joins``' ``deferred_pairings``),
         then those of the version that join took (its ``alternatives_taken``;
         ``cfg.weak_join_pairings``). Ids are those ``update()`` returned (before
         ``resolve()``), so a simulator's ids label them; see

@@ -180,7 +180,7 @@ TEST(DecidingJoin, AWeakJoinsAlternativeLeavesOutThePairsOfFeaturesSeenOnce) {
     EXPECT_EQ(merged, expected_merged[v]);
   }
   // A join too small for the version without any pair keeps the other one only.
-  DecidingJoin small(first, second, by_id(), 4, /*version_without_pairs=*/false);
+  DecidingJoin small(first, second, by_id(), 4, /*spans_many_maps=*/false);
   small.finish();
   EXPECT_EQ(small.report().deferred_pairings, 2);
   const DecidedJoin small_decided = small.take_result(none, 0);
@@ -195,7 +195,7 @@ TEST(DecidingJoin, WhenEveryPairHasAFeatureSeenOnceTheOnlyOtherVersionHasNoPair)
   const auto m2 = shared_random_map(rng, {3, 5, 9});
   const TreeMap first{m1, {TentativeFeature{3, 0, false, false}}, nullptr};
   const TreeMap second{m2, {TentativeFeature{5, 1, false, false}}, nullptr};
-  DecidingJoin weak(first, second, by_id(), 30, /*version_without_pairs=*/false);
+  DecidingJoin weak(first, second, by_id(), 30, /*spans_many_maps=*/false);
   weak.finish();
   EXPECT_EQ(weak.report().deferred_pairings, 2);
   DecidedJoin decided = weak.take_result(none, 0);

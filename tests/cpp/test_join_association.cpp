@@ -4,8 +4,10 @@
 #include <Eigen/Cholesky>
 #include <gtest/gtest.h>
 
+#include "dcslam/core/chi_square.hpp"
 #include "dcslam/estimation/ekf_slam.hpp"
 #include "dcslam/association/jcbb.hpp"
+#include "dcslam/joining/join_alternatives.hpp"
 #include "dcslam/joining/join_association.hpp"
 #include "dcslam/joining/map_joining.hpp"
 #include "print_parameters.hpp"
@@ -273,6 +275,106 @@ TEST_P(JoinAssociationModes, ResumedInSlicesGivesBitwiseTheSameResult) {
     EXPECT_EQ(a.ids(), b.ids());
     EXPECT_TRUE((a.x().array() == b.x().array()).all());
     EXPECT_TRUE((a.P().array() == b.P().array()).all());
+  }
+}
+
+// Doubtful pairs (JoinAssociationResult::doubtful) against a brute-force search over every pair
+// of the two maps: a pair is doubtful when another pair that shares one of its features passes
+// the candidates' individual gate with a D^2 below its own plus kDoubtfulPairMargin. Landmarks
+// 0.3 m apart, so that some pairs have such a rival and others not.
+TEST_P(JoinAssociationModes, DoubtfulPairsAreThoseWithACloseRivalCandidate) {
+  std::mt19937_64 rng(25);
+  World world;
+  world.landmarks = landmark_field(Vec2(-3, -3), Vec2(15, 15), 400, 0.3, rng);
+  const auto path = square_path(96, 12);
+  const auto [first, second] = two_local_maps(simulate(world, path, 9), 48);
+  const JoinFrame frame(first, second);
+  const JoinOptions options = options_for(GetParam());
+  const JoinAssociationResult result = associate_maps(frame, options);
+  ASSERT_EQ(result.doubtful.size(), result.pairs.size());
+
+  const JoinPairingModel model(frame);
+  const double pruning_gate = chi2_quantile(2, 1.0 - 0.1 * (1.0 - options.rjc.confidence));
+  const auto d2 = [&](Index j, Index i) {
+    return individual_distance_sq(model, Pairing{static_cast<int>(j), static_cast<int>(i)});
+  };
+  int doubtful = 0;
+  for (std::size_t k = 0; k < result.pairs.size(); ++k) {
+    const auto [i, j] = result.pairs[k];
+    const double below = d2(j, i) + kDoubtfulPairMargin;
+    bool rival = false;
+    for (Index other = 0; other < first.num_features(); ++other) {
+      const double d = d2(j, other);
+      rival = rival || (other != i && d <= pruning_gate && d < below);
+    }
+    for (Index other = 0; other < second.num_features(); ++other) {
+      const double d = d2(other, i);
+      rival = rival || (other != j && d <= pruning_gate && d < below);
+    }
+    EXPECT_EQ(result.doubtful[k] != 0, rival) << "pair " << k;
+    doubtful += rival ? 1 : 0;
+  }
+  EXPECT_GT(doubtful, 0);
+  EXPECT_LT(doubtful, static_cast<int>(result.pairs.size()));
+}
+
+// A large join (more pairs than the weak-join limit) spanning many local maps keeps the version
+// of its result without its doubtful pairs, decided by the next join
+// (join_alternatives.hpp). Oracle: a join imposing the association's pairs less those the
+// brute-force search above finds doubtful, fixed in advance.
+TEST_P(JoinAssociationModes, ALargeJoinKeepsItsVersionWithoutItsDoubtfulPairs) {
+  std::mt19937_64 rng(25);
+  World world;
+  world.landmarks = landmark_field(Vec2(-3, -3), Vec2(15, 15), 400, 0.3, rng);
+  const auto path = square_path(96, 12);
+  const auto [first_map, second_map] = two_local_maps(simulate(world, path, 9), 48);
+  const auto m1 = std::make_shared<const GaussianMap>(first_map);
+  const auto m2 = std::make_shared<const GaussianMap>(second_map);
+  const JoinOptions options = options_for(GetParam());
+  const DecidingJoin::MakeJoin make = [&options](const TreeMap& a, const TreeMap& b,
+                                                 std::shared_ptr<const MapJoin::Pairs> fixed_pairs) {
+    JoinOptions join_options = options;
+    join_options.fixed_pairs = std::move(fixed_pairs);
+    return std::make_unique<MapJoin>(a.map, b.map, join_options);
+  };
+  const auto none = [](const TreeMap&, const TreeMap&, const MapJoin&) { return std::vector<TentativeFeature>{}; };
+  const TreeMap first{m1, {}, nullptr}, second{m2, {}, nullptr};
+
+  const JoinAssociationResult association = associate_maps(JoinFrame(*m1, *m2), options);
+  auto kept = std::make_shared<MapJoin::Pairs>();
+  for (std::size_t k = 0; k < association.pairs.size(); ++k) {
+    if (!association.doubtful[k]) kept->push_back(association.pairs[k]);
+  }
+  const int weak_pairings = 5;
+  ASSERT_GT(static_cast<int>(association.pairs.size()), weak_pairings);
+  ASSERT_GT(kept->size(), 0u);
+  ASSERT_LT(kept->size(), association.pairs.size());
+
+  DecidingJoin large(first, second, make, weak_pairings, /*spans_many_maps=*/true);
+  large.finish();
+  EXPECT_EQ(large.report().deferred_pairings, static_cast<int>(association.pairs.size() - kept->size()));
+  DecidedJoin decided = large.take_result(none, 0);
+  EXPECT_TRUE(decided.settled.empty());  // its decision waits for the next join
+  ASSERT_NE(decided.alternative, nullptr);
+  ASSERT_EQ(decided.alternative->versions.size(), 1u);
+  EXPECT_EQ(decided.alternative->made_ids.merged.size(), association.pairs.size());
+  const JoinAlternative::Version& version = decided.alternative->versions[0];
+  EXPECT_EQ(version.ids.merged.size(), kept->size());
+  JoinOptions oracle_options = options;
+  oracle_options.fixed_pairs = kept;
+  const GaussianMap oracle = join_maps(*m1, *m2, oracle_options);
+  EXPECT_EQ(version.map->ids(), oracle.ids());
+  EXPECT_TRUE((version.map->x().array() == oracle.x().array()).all());
+  EXPECT_TRUE((version.map->P().array() == oracle.P().array()).all());
+
+  // Few local maps, or the option off: the large join's pairs are final.
+  for (const auto& [pairings, many_maps] : {std::pair<int, bool>{weak_pairings, false}, {0, true}}) {
+    DecidingJoin final_join(first, second, make, pairings, many_maps);
+    final_join.finish();
+    EXPECT_EQ(final_join.report().deferred_pairings, 0);
+    const DecidedJoin result = final_join.take_result(none, 0);
+    EXPECT_EQ(result.alternative, nullptr);
+    EXPECT_EQ(result.settled.size(), 1u);
   }
 }
 

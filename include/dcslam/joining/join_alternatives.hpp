@@ -6,7 +6,9 @@
 // features seen once bends both maps: the next, larger join then finds its true pairs
 // incompatible, and the landmarks of a whole lap end up duplicated. Such a weak join (one with
 // a pair of a feature seen once) keeps two more versions of its result: its pairs less those
-// with a feature seen once, and none of its pairs. The next join sees much more of the map:
+// with a feature seen once, and none of its pairs. A large join keeps one: its pairs less the
+// doubtful ones, those with a rival candidate nearly as close. The next join sees much more of
+// the map:
 // it runs its association on each combination of its inputs' versions and joins the one that
 // makes the most pairs in all, its own and those of the versions it takes (a tie keeps the
 // tighter versions: as made, then less the pairs of features seen once). Until then the ids
@@ -86,9 +88,12 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
 
   // `weak_pairings`: the join keeps an alternative when it makes at most this many pairs and
   // some of them have a feature seen once (listed as tentative by either version it joins);
-  // 0: never, its result is final. `version_without_pairs`: the alternative includes the
-  // version without any pair (it always does when every pair has a feature seen once).
-  DecidingJoin(TreeMap first, TreeMap second, MakeJoin make_join, int weak_pairings, bool version_without_pairs);
+  // 0: never, its result is final (a large join's too). `spans_many_maps`: the join spans 16
+  // local maps or more (or is one of estimate()'s fold): a weak join's alternative then includes
+  // the version without any pair (it always does when every pair has a feature seen once), and
+  // a large join (more than `weak_pairings` pairs) keeps its version without its doubtful pairs
+  // (MapJoin::doubtful()), when some but not all of its pairs are doubtful.
+  DecidingJoin(TreeMap first, TreeMap second, MakeJoin make_join, int weak_pairings, bool spans_many_maps);
   ~DecidingJoin();
   DecidingJoin(const DecidingJoin&) = delete;
   DecidingJoin& operator=(const DecidingJoin&) = delete;
@@ -123,12 +128,13 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
   };
   void choose();
   void start_alternatives();
+  void start_version_without_doubtful_pairs();
   void start_next_alternative();
 
   TreeMap first_, second_;
   MakeJoin make_join_;
   int weak_pairings_;
-  bool version_without_pairs_;
+  bool spans_many_maps_;
   Phase phase_ = Phase::Choose;
   std::vector<Candidate> candidates_;
   std::unique_ptr<MapJoin> chosen_;

@@ -42,8 +42,16 @@ class JoinPairingModel : public PairingModel {
   double feature_variance_;
 };
 
+// A pair is doubtful when a rival candidate comes within this much of its marginal D^2: another
+// feature of m1 individually compatible with its m2 feature, or another feature of m2 with its
+// m1 feature. A large join leaves its doubtful pairs to the next join's decision
+// (join_alternatives.hpp); 0.5 by measurement (docs/data_association.md, "Large joins' doubtful
+// pairs").
+inline constexpr double kDoubtfulPairMargin = 0.5;
+
 struct JoinAssociationResult {
   std::vector<std::pair<Eigen::Index, Eigen::Index>> pairs;  // (i in m1, j in m2)
+  std::vector<char> doubtful;  // per pair: a rival candidate within kDoubtfulPairMargin
   int overlap = 0;
   int tries = 0;
   std::vector<JoinTruthAudit> truth_audit;  // only with a JoinOracle
@@ -88,6 +96,8 @@ class JoinAssociator : public ResumableWork<JoinAssociator> {
   std::int64_t advance_rjc(std::int64_t budget);
   std::int64_t run_jcbb();
   void conclude(std::vector<int> feature_of);
+  // Marks each pair of result_.pairs doubtful or not, from the candidate lists.
+  void mark_doubtful();
   // JoinOracle: its pairing (per m2 feature, its m1 partner or kStar), the audit of that
   // pairing, and the decision corrected with it.
   std::vector<int> oracle_pairing() const;

@@ -69,6 +69,9 @@ class MapJoin : public ResumableWork<MapJoin> {
   // Valid once associated.
   const JoinPairingRecord& pairing_record() const { return pairing_record_; }
   const Pairs& pairs() const { return pairs_; }
+  // Per pair, whether a rival candidate came close (JoinAssociationResult::doubtful); all false
+  // for pairs by id or fixed in advance.
+  const std::vector<char>& doubtful() const { return doubtful_; }
   // (id in m2, id in m1) for every matched pair: the m2 feature merged into the m1 one.
   std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids() const;
   // Ids of the tentative features (of m1, then of m2) marginalised out of the result; known
@@ -89,6 +92,7 @@ class MapJoin : public ResumableWork<MapJoin> {
   JoinReport report_;
   JoinPairingRecord pairing_record_;
   Pairs pairs_;
+  std::vector<char> doubtful_;
   std::vector<Eigen::Index> first_tentative_;
   std::vector<Eigen::Index> second_tentative_;
   std::vector<std::pair<std::int64_t, std::int64_t>> merged_ids_;
