@@ -278,16 +278,20 @@ TEST_P(JoinAssociationModes, ResumedInSlicesGivesBitwiseTheSameResult) {
   }
 }
 
-// Doubtful pairs (JoinAssociationResult::doubtful) against a brute-force search over every pair
-// of the two maps: a pair is doubtful when another pair that shares one of its features passes
-// the candidates' individual gate with a D^2 below its own plus kDoubtfulPairMargin. Landmarks
-// 0.3 m apart, so that some pairs have such a rival and others not.
-TEST_P(JoinAssociationModes, DoubtfulPairsAreThoseWithACloseRivalCandidate) {
+// A square loop driven twice among landmarks 0.3 m apart: m1 is the first lap, m2 the second,
+// and some of their pairs have a rival candidate nearly as close while others have none.
+std::pair<GaussianMap, GaussianMap> dense_full_overlap() {
   std::mt19937_64 rng(25);
   World world;
   world.landmarks = landmark_field(Vec2(-3, -3), Vec2(15, 15), 400, 0.3, rng);
-  const auto path = square_path(96, 12);
-  const auto [first, second] = two_local_maps(simulate(world, path, 9), 48);
+  return two_local_maps(simulate(world, square_path(96, 12), 9), 48);
+}
+
+// Doubtful pairs (JoinAssociationResult::doubtful) against a brute-force search over every pair
+// of the two maps: a pair is doubtful when another pair that shares one of its features passes
+// the candidates' individual gate with a D^2 below its own plus kDoubtfulPairMargin.
+TEST_P(JoinAssociationModes, DoubtfulPairsAreThoseWithACloseRivalCandidate) {
+  const auto [first, second] = dense_full_overlap();
   const JoinFrame frame(first, second);
   const JoinOptions options = options_for(GetParam());
   const JoinAssociationResult result = associate_maps(frame, options);
@@ -323,11 +327,7 @@ TEST_P(JoinAssociationModes, DoubtfulPairsAreThoseWithACloseRivalCandidate) {
 // (join_alternatives.hpp). Oracle: a join imposing the association's pairs less those the
 // brute-force search above finds doubtful, fixed in advance.
 TEST_P(JoinAssociationModes, ALargeJoinKeepsItsVersionWithoutItsDoubtfulPairs) {
-  std::mt19937_64 rng(25);
-  World world;
-  world.landmarks = landmark_field(Vec2(-3, -3), Vec2(15, 15), 400, 0.3, rng);
-  const auto path = square_path(96, 12);
-  const auto [first_map, second_map] = two_local_maps(simulate(world, path, 9), 48);
+  const auto [first_map, second_map] = dense_full_overlap();
   const auto m1 = std::make_shared<const GaussianMap>(first_map);
   const auto m2 = std::make_shared<const GaussianMap>(second_map);
   const JoinOptions options = options_for(GetParam());
