@@ -689,9 +689,9 @@ struct CheckpointAccess {
         alternative->made_ids = load_join_ids(in);
         alternative->join_index = in.pod<int>();
         Reader::require(alternative->join_index >= 0 && static_cast<std::size_t>(alternative->join_index) < tasks.size(),
-                        "a weak join's index beyond the joins made");
+                        "the index of a join left to the next join's decision beyond the joins made");
         const auto versions = in.pod<std::uint32_t>();
-        Reader::require(versions >= 1 && versions <= 2, "a weak join with 1 or 2 other versions");
+        Reader::require(versions >= 1 && versions <= 2, "a join left to the next join's decision with 1 or 2 other versions");
         for (std::uint32_t k = 0; k < versions; ++k) {
           JoinAlternative::Version version;
           version.map = std::make_shared<const GaussianMap>(load_map(in));

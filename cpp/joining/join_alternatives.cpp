@@ -173,8 +173,12 @@ void DecidingJoin::start_version_without_doubtful_pairs() {
   for (std::size_t k = 0; k < pairs.size(); ++k) {
     if (!doubtful[k]) kept->push_back(pairs[k]);
   }
-  if (kept->size() == pairs.size() || kept->empty()) return;
-  deferred_pairs_ = static_cast<int>(pairs.size() - kept->size());
+  const std::size_t doubtful_count = pairs.size() - kept->size();
+  if (kept->empty() ||
+      static_cast<double>(doubtful_count) < kMinDoubtfulShare * static_cast<double>(pairs.size())) {
+    return;
+  }
+  deferred_pairs_ = static_cast<int>(doubtful_count);
   alternative_pairs_.push_back(std::move(kept));
   start_next_alternative();
 }

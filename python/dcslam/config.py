@@ -94,7 +94,8 @@ class SlamConfig:
             One wrong pair between features seen once at such a join bends both maps, and
             the next join then duplicates a whole lap's landmarks. A join of 16 local maps
             or more that makes more pairs than this keeps its result without its doubtful
-            pairs (a rival candidate nearly as close), decided the same way. 30 (default) by
+            pairs (a rival candidate nearly as close) when they are at least a tenth of
+            its pairs, decided the same way. 30 (default) by
             measurement on the simulator's revisit scenes; 0: off, every join's pairs are
             final when made (docs/data_association.md, "Weak joins decided by the next
             join" and "Large joins' doubtful pairs, decided by the next join").

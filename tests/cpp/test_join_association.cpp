@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -278,20 +279,27 @@ TEST_P(JoinAssociationModes, ResumedInSlicesGivesBitwiseTheSameResult) {
   }
 }
 
-// A square loop driven twice among landmarks 0.3 m apart: m1 is the first lap, m2 the second,
-// and some of their pairs have a rival candidate nearly as close while others have none.
-std::pair<GaussianMap, GaussianMap> dense_full_overlap() {
-  std::mt19937_64 rng(25);
+// A square loop driven twice among landmarks a few tenths of a metre apart: m1 is the first
+// lap, m2 the second, and some of their pairs have a rival candidate nearly as close while
+// others have none.
+std::pair<GaussianMap, GaussianMap> dense_full_overlap(double min_separation, int seed) {
+  std::mt19937_64 rng(seed);
   World world;
-  world.landmarks = landmark_field(Vec2(-3, -3), Vec2(15, 15), 400, 0.3, rng);
+  world.landmarks = landmark_field(Vec2(-3, -3), Vec2(15, 15), 400, min_separation, rng);
   return two_local_maps(simulate(world, square_path(96, 12), 9), 48);
 }
+
+// Three such worlds: a quarter of the pairs doubtful, one in eighteen (where JCBB is still quick),
+// one in three hundred; on either side of kMinDoubtfulShare.
+std::pair<GaussianMap, GaussianMap> many_doubtful_pairs() { return dense_full_overlap(0.2, 25); }
+std::pair<GaussianMap, GaussianMap> some_doubtful_pairs() { return dense_full_overlap(0.22, 26); }
+std::pair<GaussianMap, GaussianMap> few_doubtful_pairs() { return dense_full_overlap(0.3, 25); }
 
 // Doubtful pairs (JoinAssociationResult::doubtful) against a brute-force search over every pair
 // of the two maps: a pair is doubtful when another pair that shares one of its features passes
 // the candidates' individual gate with a D^2 below its own plus kDoubtfulPairMargin.
 TEST_P(JoinAssociationModes, DoubtfulPairsAreThoseWithACloseRivalCandidate) {
-  const auto [first, second] = dense_full_overlap();
+  const auto [first, second] = some_doubtful_pairs();
   const JoinFrame frame(first, second);
   const JoinOptions options = options_for(GetParam());
   const JoinAssociationResult result = associate_maps(frame, options);
@@ -324,13 +332,12 @@ TEST_P(JoinAssociationModes, DoubtfulPairsAreThoseWithACloseRivalCandidate) {
 
 // A large join (more pairs than the weak-join limit) spanning many local maps keeps the version
 // of its result without its doubtful pairs, decided by the next join
-// (join_alternatives.hpp). Oracle: a join imposing the association's pairs less those the
-// brute-force search above finds doubtful, fixed in advance.
-TEST_P(JoinAssociationModes, ALargeJoinKeepsItsVersionWithoutItsDoubtfulPairs) {
-  const auto [first_map, second_map] = dense_full_overlap();
-  const auto m1 = std::make_shared<const GaussianMap>(first_map);
-  const auto m2 = std::make_shared<const GaussianMap>(second_map);
-  const JoinOptions options = options_for(GetParam());
+// (join_alternatives.hpp), when at least kMinDoubtfulShare of its pairs are doubtful. Oracle: a
+// join imposing the association's pairs less those the brute-force search above finds
+// doubtful, fixed in advance. RJC only: the decision does not depend on the association that
+// made the pairs, and JCBB takes seconds on these worlds.
+TEST(JoinAssociation, ALargeJoinKeepsItsVersionWithoutItsDoubtfulPairs) {
+  const JoinOptions options = options_for(JoinAssociation::Rjc);
   const DecidingJoin::MakeJoin make = [&options](const TreeMap& a, const TreeMap& b,
                                                  std::shared_ptr<const MapJoin::Pairs> fixed_pairs) {
     JoinOptions join_options = options;
@@ -338,17 +345,29 @@ TEST_P(JoinAssociationModes, ALargeJoinKeepsItsVersionWithoutItsDoubtfulPairs) {
     return std::make_unique<MapJoin>(a.map, b.map, join_options);
   };
   const auto none = [](const TreeMap&, const TreeMap&, const MapJoin&) { return std::vector<TentativeFeature>{}; };
-  const TreeMap first{m1, {}, nullptr}, second{m2, {}, nullptr};
+  const int weak_pairings = 5;
+  const auto expect_pairs_final = [&](const TreeMap& first, const TreeMap& second, int pairings, bool many_maps) {
+    DecidingJoin final_join(first, second, make, pairings, many_maps);
+    final_join.finish();
+    EXPECT_EQ(final_join.report().deferred_pairings, 0);
+    const DecidedJoin result = final_join.take_result(none, 0);
+    EXPECT_EQ(result.alternative, nullptr);
+    EXPECT_EQ(result.settled.size(), 1u);
+  };
 
+  const auto [first_map, second_map] = many_doubtful_pairs();
+  const auto m1 = std::make_shared<const GaussianMap>(first_map);
+  const auto m2 = std::make_shared<const GaussianMap>(second_map);
+  const TreeMap first{m1, {}, nullptr}, second{m2, {}, nullptr};
   const JoinAssociationResult association = associate_maps(JoinFrame(*m1, *m2), options);
   auto kept = std::make_shared<MapJoin::Pairs>();
   for (std::size_t k = 0; k < association.pairs.size(); ++k) {
     if (!association.doubtful[k]) kept->push_back(association.pairs[k]);
   }
-  const int weak_pairings = 5;
   ASSERT_GT(static_cast<int>(association.pairs.size()), weak_pairings);
   ASSERT_GT(kept->size(), 0u);
-  ASSERT_LT(kept->size(), association.pairs.size());
+  ASSERT_LE(static_cast<double>(kept->size()),
+            (1.0 - kMinDoubtfulShare) * static_cast<double>(association.pairs.size()));
 
   DecidingJoin large(first, second, make, weak_pairings, /*spans_many_maps=*/true);
   large.finish();
@@ -368,14 +387,18 @@ TEST_P(JoinAssociationModes, ALargeJoinKeepsItsVersionWithoutItsDoubtfulPairs) {
   EXPECT_TRUE((version.map->P().array() == oracle.P().array()).all());
 
   // Few local maps, or the option off: the large join's pairs are final.
-  for (const auto& [pairings, many_maps] : {std::pair<int, bool>{weak_pairings, false}, {0, true}}) {
-    DecidingJoin final_join(first, second, make, pairings, many_maps);
-    final_join.finish();
-    EXPECT_EQ(final_join.report().deferred_pairings, 0);
-    const DecidedJoin result = final_join.take_result(none, 0);
-    EXPECT_EQ(result.alternative, nullptr);
-    EXPECT_EQ(result.settled.size(), 1u);
-  }
+  expect_pairs_final(first, second, weak_pairings, /*many_maps=*/false);
+  expect_pairs_final(first, second, 0, /*many_maps=*/true);
+
+  // Doubtful pairs, but fewer than kMinDoubtfulShare of them: the pairs are final too.
+  const auto [sparse_first, sparse_second] = few_doubtful_pairs();
+  const auto s1 = std::make_shared<const GaussianMap>(sparse_first);
+  const auto s2 = std::make_shared<const GaussianMap>(sparse_second);
+  const JoinAssociationResult sparse = associate_maps(JoinFrame(*s1, *s2), options);
+  const auto few_doubtful = std::count(sparse.doubtful.begin(), sparse.doubtful.end(), char{1});
+  ASSERT_GT(few_doubtful, 0);
+  ASSERT_LT(static_cast<double>(few_doubtful), kMinDoubtfulShare * static_cast<double>(sparse.pairs.size()));
+  expect_pairs_final(TreeMap{s1, {}, nullptr}, TreeMap{s2, {}, nullptr}, weak_pairings, /*many_maps=*/true);
 }
 
 INSTANTIATE_TEST_SUITE_P(Modes, JoinAssociationModes,

@@ -27,6 +27,12 @@
 
 namespace dcslam {
 
+// A large join keeps its version without its doubtful pairs only when at least this share of its
+// pairs is doubtful. Below it the version was never taken (Victoria Park, the revisit scenes) but
+// was held in memory until the next join decided; 0.1 by measurement (docs/data_association.md,
+// "Large joins' doubtful pairs").
+inline constexpr double kMinDoubtfulShare = 0.1;
+
 // What a join did to ids: each merged feature of m2 names the feature of m1 it joined
 // (from, to); each dropped tentative feature resolves to -1.
 struct JoinIds {
