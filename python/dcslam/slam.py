@@ -351,11 +351,12 @@ class DCSlamStats(SlamStats):
             result), ``step_created``, ``step_finished`` (-1 while pending),
             ``features_first``, ``features_second``, ``features_joined``, ``overlap``,
             ``pairings``, ``deferred_pairings`` (a weak join's pairs left to the next join's
-            decision, or a large join's doubtful pairs, ``cfg.weak_join_pairings``), ``alternatives_taken`` (0-2: inputs of
-            which it joined a version other than the one made), ``tries`` (RJC),
-            ``iterations`` (linearisation points of the constraint update, at most
-            ``cfg.join_iterations``; 0 without pairings), ``seconds`` (summed over the
-            slices it ran in), ``seconds_association``, ``work_units``.
+            decision, or a large join's doubtful pairs, ``cfg.weak_join_pairings``),
+            ``alternatives_taken`` (0-2: inputs of which it joined a version other than the
+            one made), ``tries`` (RJC), ``iterations`` (linearisation points of the
+            constraint update, at most ``cfg.join_iterations``; 0 without pairings),
+            ``seconds`` (summed over the slices it ran in), ``seconds_association``,
+            ``work_units``.
         stack: (local maps, features) of each map on the stack, bottom first.
     """
 

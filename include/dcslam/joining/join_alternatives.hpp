@@ -98,7 +98,8 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
   // local maps or more (or is one of estimate()'s fold): a weak join's alternative then includes
   // the version without any pair (it always does when every pair has a feature seen once), and
   // a large join (more than `weak_pairings` pairs) keeps its version without its doubtful pairs
-  // (MapJoin::doubtful()), when some but not all of its pairs are doubtful.
+  // (MapJoin::doubtful()), when at least kMinDoubtfulShare of its pairs are doubtful but not
+  // all of them.
   DecidingJoin(TreeMap first, TreeMap second, MakeJoin make_join, int weak_pairings, bool spans_many_maps);
   ~DecidingJoin();
   DecidingJoin(const DecidingJoin&) = delete;
