@@ -16,6 +16,7 @@
 // time until its result is next needed.
 #include <atomic>
 #include <condition_variable>
+#include <cstddef>
 #include <cstdint>
 #include <deque>
 #include <exception>
@@ -201,8 +202,40 @@ class DCSlam : public SlamFilter {
   };
   std::shared_ptr<FrozenNode> freeze(const std::shared_ptr<Node>& node) const;  // mutex_ held
   // The map of a frozen node, computing pending joins on copies (never touching the real
-  // tasks); the merges those joins make are added to `aliases` and `seen_with`.
-  TreeMap materialize(const FrozenNode& node, IdAliases& aliases, SeenWith& seen_with) const;
+  // tasks); what those joins did to ids is appended to `settled`, oldest first.
+  TreeMap materialize(const FrozenNode& node, std::vector<JoinIds>& settled) const;
+  // A map of the stack as estimate()'s fold takes it: materialized, with the ids its pending
+  // joins settled, and its robot's pose id.
+  struct FoldInput {
+    TreeMap map;
+    std::vector<JoinIds> settled;
+    std::int64_t robot_id = 0;
+    std::int64_t leaves = 0;
+  };
+  // The fold as far as it has gone: the maps folded so far (with the alternative of a weak fold
+  // join while its decision waits), what the fold did to ids, and its joins' records.
+  struct FoldState {
+    TreeMap joined;
+    std::shared_ptr<GaussianMap> result;  // joined's map as the last fold join made it, mutable
+    IdAliases aliases;
+    SeenWith seen_with;
+    std::vector<JoinPairingRecord> records;
+    std::int64_t leaves = 1;  // local maps folded, the open one included
+    // A weak fold join that the rest of the fold would decide was decided by the next join.
+    bool next_join_decided = false;
+  };
+  // Folds `inputs` (the stack, top first) from `position` on into `state`. With
+  // `decide_by_rest`, each weak fold join of kMinWeakJoinLeaves local maps or more is decided
+  // by the rest of the fold (decide_by_rest_of_fold()); without, by the next fold join, as a
+  // real join is (and the smaller ones always).
+  FoldState fold(FoldState state, const std::vector<FoldInput>& inputs, std::size_t position,
+                 bool decide_by_rest) const;
+  // `state` ends with a weak fold join whose decision waits: carries each of its versions
+  // through the rest of the fold (each later weak join decided by its next join) and keeps the
+  // one that makes the most pairs over the weak join and every fold join after it (a tie keeps
+  // the tighter version); the fold then goes on from that version, deciding the later weak
+  // joins the same way (docs/data_association.md, "The final fold").
+  FoldState decide_by_rest_of_fold(FoldState state, const std::vector<FoldInput>& inputs, std::size_t position) const;
   // Merges the duplicates the joins left in the estimate's `map` as the EKF merges its own
   // (never seen in one scan, each the other's only compatible feature within merge_radius),
   // the test with join_feature_sigma as at a join. The ids of `seen_with`'s lists follow the
