@@ -111,8 +111,12 @@ class SlamConfig:
         join_feature_sigma: D&C joins' compatibility tests only: a per-feature position
             error in metres (>= 0) that repeated sightings do not average out, added as
             ``join_feature_sigma**2 * I`` to each feature of a tested pair; the update still
-            imposes the pairs exactly. 0 (default): the maps' covariances alone. Victoria
-            Park's config sets it from the data (docs/victoria_park.md).
+            imposes the pairs exactly (and in the test of the duplicate merge that ends
+            :meth:`~dcslam.DCSlam.estimate`). 0.01 (default) by measurement: a local EKF's
+            linearisation leaves each feature about 1 cm of error, relative to the others of
+            its map, that its covariance does not hold (docs/data_association.md, "A feature
+            error at the joins"); 0: the maps' covariances alone. Victoria Park's config sets
+            0.1 from the data (docs/victoria_park.md).
         tree_relinearisation: D&C: damped Gauss-Newton passes (>= 0) that
             :meth:`~dcslam.DCSlam.estimate` makes through the whole tree of joins: every kept
             local map is rebuilt from its own odometry and measurements, and every join
@@ -150,7 +154,7 @@ class SlamConfig:
     rjc_p_good: float = 0.8
     rjc_p_fail: float = 0.01
     join_iterations: int = 10
-    join_feature_sigma: float = 0.0
+    join_feature_sigma: float = 0.01
     tree_relinearisation: int = 0
     seed: int = 0
     amortize: bool = True

@@ -66,10 +66,12 @@ struct SlamConfig {
   // one-shot join linearised at the prior means).
   int join_iterations = 10;
   // D&C joins' compatibility tests only: a per-feature position error (m) that repeated
-  // sightings do not average out (on real data, e.g. a trunk centre seen from different
-  // sides), added as join_feature_sigma^2 I to each feature of a tested pair. The update still
-  // imposes the pairs exactly. 0: the maps' covariances alone (exact in simulation).
-  double join_feature_sigma = 0.0;
+  // sightings do not average out (a local EKF's linearisation; on real data, e.g. a trunk
+  // centre seen from different sides), added as join_feature_sigma^2 I to each feature of a
+  // tested pair. The update still imposes the pairs exactly. 0.01 by measurement: the error of
+  // a feature relative to another of its local map, against the truth, is consistent with its
+  // covariance only with it (docs/data_association.md, "A feature error at the joins").
+  double join_feature_sigma = 0.01;
   // D&C: damped Gauss–Newton passes that estimate() makes through the whole tree of joins,
   // rebuilding every kept local map from its own odometry and measurements and redoing every
   // join, all linearised at the previous pass's map (join_tree.hpp, leaf_relinearisation.hpp);
