@@ -128,3 +128,9 @@ def test_paired_association_is_zero_for_no_change_and_sees_a_change(tmp_path):
     assert saved["b"]["merge_radius"] == 0 and saved["a"]["merge_radius"] == default_radius
     assert any(run["a"] != run["b"] for run in saved["runs"])
     assert run_study("paired_association.py", check=False).returncode != 0  # no --b: nothing to compare
+
+
+def test_local_map_consistency_on_one_seed():
+    printed = run_study("local_map_consistency.py", "--seeds", 1, "--sigmas", "0,0.01").stdout
+    assert "loop_both_ways, seeds 0..0:" in printed
+    assert "sigma 0.000 m: mean NEES" in printed and "sigma 0.010 m: mean NEES" in printed

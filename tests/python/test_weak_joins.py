@@ -159,15 +159,19 @@ def test_a_large_joins_doubtful_pairs_are_taken_back():
             assert len(record["pairs"]) == join["pairings"] - join["deferred_pairings"]
 
 
+def assert_every_listed_pair_is_one_feature(slam, records):
+    for record in records:
+        pairs = np.array(record["pairs"], dtype=np.int64).reshape(-1, 2)
+        assert np.array_equal(slam.resolve(pairs[:, 0]), slam.resolve(pairs[:, 1]))
+
+
 def test_every_pair_a_join_record_lists_ends_in_one_feature(default_run):
     """A weak join's record lists the pairs of the version a later join took, not those it
     made: after estimate() (which decides the weak joins still waiting), every pair listed by
     join_pairings() and fold_pairings() resolves to one feature."""
     slam, _, _ = default_run
     assert slam.stats.counters["alternatives_taken"] >= 1
-    for record in slam.join_pairings() + slam.fold_pairings():
-        pairs = np.array(record["pairs"], dtype=np.int64).reshape(-1, 2)
-        assert np.array_equal(slam.resolve(pairs[:, 0]), slam.resolve(pairs[:, 1]))
+    assert_every_listed_pair_is_one_feature(slam, slam.join_pairings() + slam.fold_pairings())
 
 
 @pytest.fixture(scope="module")
@@ -189,8 +193,6 @@ def test_a_weak_fold_join_is_decided_by_the_rest_of_the_fold(fold_scene):
     # Its record lists the pairs of the version taken: each resolves to one feature.
     folds = slam.fold_pairings()
     assert len(folds) >= 3
-    for record in folds:
-        pairs = np.array(record["pairs"], dtype=np.int64).reshape(-1, 2)
-        assert np.array_equal(slam.resolve(pairs[:, 0]), slam.resolve(pairs[:, 1]))
+    assert_every_listed_pair_is_one_feature(slam, folds)
     # The fold runs on copies: every join schedule gives the same estimate.
     assert_same((slam, returned, estimate), run(fold_scene, dataclasses.replace(config, threaded_joins=True)))

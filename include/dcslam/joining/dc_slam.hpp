@@ -234,7 +234,8 @@ class DCSlam : public SlamFilter {
   // through the rest of the fold (each later weak join decided by its next join) and keeps the
   // one that makes the most pairs over the weak join and every fold join after it (a tie keeps
   // the tighter version); the fold then goes on from that version, deciding the later weak
-  // joins the same way (docs/data_association.md, "The final fold").
+  // joins the same way (docs/data_association.md, "The final fold decides by the rest of the
+  // fold").
   FoldState decide_by_rest_of_fold(FoldState state, const std::vector<FoldInput>& inputs, std::size_t position) const;
   // Merges the duplicates the joins left in the estimate's `map` as the EKF merges its own
   // (never seen in one scan, each the other's only compatible feature within merge_radius),
