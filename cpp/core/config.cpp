@@ -76,6 +76,8 @@ void SlamConfig::validate() const {
           "join_iterations: must be >= 1, got " + std::to_string(join_iterations));
   require(tree_relinearisation >= 0 && tree_relinearisation <= 100,
           "tree_relinearisation: must lie in [0, 100], got " + std::to_string(tree_relinearisation));
+  require(large_overlap_confidence > 0.0 && large_overlap_confidence < 1.0,
+          "large_overlap_confidence: must lie in (0, 1), got " + number_text(large_overlap_confidence));
   require(std::isfinite(join_feature_sigma) && join_feature_sigma >= 0.0,
           "join_feature_sigma: must be finite and >= 0, got " + number_text(join_feature_sigma));
   // Joins by id pair the features of two local maps that carry the same caller's id; the

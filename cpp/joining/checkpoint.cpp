@@ -151,7 +151,7 @@ class Reader {
 
 // A field added to SlamConfig must be added here too (and kCheckpointVersion raised): the size
 // check below fails the build until it is.
-static_assert(sizeof(SlamConfig) == 168, "SlamConfig changed: update save_config/load_config");
+static_assert(sizeof(SlamConfig) == 176, "SlamConfig changed: update save_config/load_config");
 
 void save_config(Writer& out, const SlamConfig& c) {
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(c.observation));
@@ -173,6 +173,7 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod(c.rjc_p_fail);
   out.pod(c.join_iterations);
   out.pod(c.join_feature_sigma);
+  out.pod(c.large_overlap_confidence);
   out.pod(c.tree_relinearisation);
   out.pod(c.seed);
   out.pod<std::uint8_t>(c.amortize);
@@ -209,6 +210,7 @@ SlamConfig load_config(Reader& in) {
   c.rjc_p_fail = in.pod<double>();
   c.join_iterations = in.pod<int>();
   c.join_feature_sigma = in.pod<double>();
+  c.large_overlap_confidence = in.pod<double>();
   c.tree_relinearisation = in.pod<int>();
   c.seed = in.pod<std::uint64_t>();
   c.amortize = in.flag();

@@ -103,6 +103,7 @@ JoinOptions DCSlam::join_options(int index, std::int64_t first_robot_id) const {
   JoinOptions options;
   options.association = config_.join_association;
   options.rjc.confidence = config_.gate_confidence;
+  options.large_overlap_confidence = config_.large_overlap_confidence;
   options.rjc.b = config_.rjc_b;
   options.rjc.p_good = config_.rjc_p_good;
   options.rjc.p_fail = config_.rjc_p_fail;

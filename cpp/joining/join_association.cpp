@@ -62,7 +62,7 @@ JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& 
 }
 
 JoinAssociator::JoinAssociator(const JoinFrame& frame, const JoinOptions& options)
-    : frame_(frame), options_(options), model_(frame, options.feature_sigma) {}
+    : frame_(frame), options_(options), model_(frame, options.feature_sigma), confidence_(options.rjc.confidence) {}
 
 std::int64_t JoinAssociator::step(std::int64_t budget) {
   switch (stage_) {
@@ -136,6 +136,8 @@ std::int64_t JoinAssociator::candidates_of_next() {
   const bool small_overlap = result_.overlap <= kRjcMinOverlapSamples * options_.rjc.b;
   if (options_.association == JoinAssociation::Rjc && !small_overlap) {
     RjcOptions rjc_options = options_.rjc;
+    if (result_.overlap >= kLargeOverlap) rjc_options.confidence = options_.large_overlap_confidence;
+    confidence_ = rjc_options.confidence;
     auto positions = std::make_shared<std::vector<Vec2>>();
     positions->reserve(candidates_.size());
     for (Index j = 0; j < frame_.second().num_features(); ++j) positions->push_back(frame_.second().feature(j));
@@ -227,7 +229,7 @@ void JoinAssociator::audit_oracle(const std::vector<int>& truth) {
     order.push_back(Pairing{static_cast<int>(audit[k].second), static_cast<int>(audit[k].first)});
     kept[static_cast<std::size_t>(audit[k].second)] = static_cast<int>(audit[k].first);
   }
-  accept_sequentially(order, 0, kept, model_, chi2_quantile(2, options_.rjc.confidence));
+  accept_sequentially(order, 0, kept, model_, chi2_quantile(2, confidence_));
   for (std::size_t k : by_distance) {
     audit[k].consistent = kept[static_cast<std::size_t>(audit[k].second)] != kStar;
   }

@@ -117,6 +117,13 @@ class SlamConfig:
             its map, that its covariance does not hold (docs/data_association.md, "A feature
             error at the joins"); 0: the maps' covariances alone. Victoria Park's config sets
             0.1 from the data (docs/victoria_park.md).
+        large_overlap_confidence: D&C: confidence (in (0, 1)) of RJC's tests at a join whose
+            overlap holds at least 50 features; ``gate_confidence`` at every other join.
+            There many pairings settle the maps' relative pose, so a tight gate only turns
+            true pairs away, and a true pair turned away at a join is a landmark mapped twice
+            for good. 0.999 (default) by measurement on the simulator's revisit scenes; set it
+            to ``gate_confidence`` for one gate everywhere (docs/data_association.md, "Large
+            overlaps decided at a wider gate").
         tree_relinearisation: D&C: damped Gauss-Newton passes (>= 0) that
             :meth:`~dcslam.DCSlam.estimate` makes through the whole tree of joins: every kept
             local map is rebuilt from its own odometry and measurements, and every join
@@ -155,6 +162,7 @@ class SlamConfig:
     rjc_p_fail: float = 0.01
     join_iterations: int = 10
     join_feature_sigma: float = 0.01
+    large_overlap_confidence: float = 0.999
     tree_relinearisation: int = 0
     seed: int = 0
     amortize: bool = True

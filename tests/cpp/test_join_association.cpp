@@ -519,5 +519,44 @@ TEST(JoinAssociation, FeatureSigmaAcceptsPairsOffsetBeyondTheirCovariance) {
   }
 }
 
+// A grid of landmarks 2 m apart seen in both maps, 2 cm each; every eighth seen again 9.6 cm
+// off (D^2 about 11.5: beyond the 0.99 gate, 9.21, within the 0.999 gate, 13.8), the others
+// 1 cm off. From an overlap of kLargeOverlap features on, RJC decides exactly as it would with
+// rjc.confidence = large_overlap_confidence, and pairs every landmark at 0.999; below it,
+// large_overlap_confidence changes nothing and the tight gate leaves offset pairs out (all
+// but those a try's seed happened to draw, which only the seed's joint test checks).
+TEST(JoinAssociation, LargeOverlapsAreDecidedAtTheirOwnConfidence) {
+  const auto join = [](int side, double confidence, double large_overlap_confidence) {
+    std::vector<Vec2> landmarks, seen_again;
+    std::vector<std::int64_t> ids;
+    for (int k = 0; k < side * side; ++k) {
+      landmarks.emplace_back(2.0 * (k % side), 2.0 * (k / side));
+      const double direction = 2.399963 * k;
+      const double off = k % 8 == 0 ? std::sqrt(11.5 * 2 * 0.02 * 0.02) : 0.01;
+      seen_again.push_back(landmarks.back() + off * Vec2(std::cos(direction), std::sin(direction)));
+      ids.push_back(k);
+    }
+    const GaussianMap first = hand_built_map(Vec3::Zero(), 1e-8 * Mat3::Identity(), landmarks, ids, 0.02);
+    const GaussianMap second = hand_built_map(Vec3::Zero(), Mat3::Zero(), seen_again, ids, 0.02);
+    JoinOptions options = options_for(JoinAssociation::Rjc);
+    options.rjc.confidence = confidence;
+    options.large_overlap_confidence = large_overlap_confidence;
+    const JoinAssociationResult result = associate_maps(JoinFrame(first, second), options);
+    EXPECT_EQ(result.overlap, side * side);
+    EXPECT_EQ(count_wrong(result.pairs, first, second), 0);
+    return result.pairs;
+  };
+  ASSERT_GE(8 * 8, kLargeOverlap);
+  ASSERT_LT(6 * 6, kLargeOverlap);
+  const Pairs wide = join(8, 0.99, 0.999);
+  EXPECT_EQ(wide.size(), 8u * 8u);
+  EXPECT_EQ(wide, join(8, 0.999, 0.999));
+  const Pairs tight = join(8, 0.99, 0.99);
+  EXPECT_LE(tight.size(), 8u * 8u - 8u + 4u);
+  const Pairs small = join(6, 0.99, 0.999);
+  EXPECT_EQ(small, join(6, 0.99, 0.99));
+  EXPECT_LE(small.size(), 6u * 6u - 5u + 4u);
+  EXPECT_LT(small.size(), join(6, 0.999, 0.999).size());
+}
 }  // namespace
 }  // namespace dcslam

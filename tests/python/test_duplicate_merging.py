@@ -114,7 +114,8 @@ def test_dc_estimate_never_merges_two_measurements_of_one_scan(scenario):
 
 
 def test_final_merge_confidence_sets_only_the_final_merge():
-    sim = dcslam.revisit_scenario("small_loop_laps", seed=0)
+    # Seed 2: seed 0 ends with no duplicate left that the wider test would take.
+    sim = dcslam.revisit_scenario("small_loop_laps", seed=2)
     base = dict(association="jcbb", join_association="rjc")
 
     def final_map(**options):

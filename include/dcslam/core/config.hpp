@@ -72,6 +72,14 @@ struct SlamConfig {
   // a feature relative to another of its local map, against the truth, is consistent with its
   // covariance only with it (docs/data_association.md, "A feature error at the joins").
   double join_feature_sigma = 0.01;
+  // D&C: the confidence of RJC's tests at a join whose overlap holds at least 50 features
+  // (join_association.hpp's kLargeOverlap); gate_confidence's at every other join. There the
+  // relative pose is settled by many pairings, so a wrong one gathers no more chance pairings
+  // than the true one: a tight gate only turns true pairs away, and a true pair turned away at
+  // a join is a landmark mapped twice for good, where the EKF's rejected sighting is one
+  // sighting. 0.999 by measurement; on small overlaps a wider gate does let a wrong relative
+  // pose win (docs/data_association.md, "Large overlaps decided at a wider gate").
+  double large_overlap_confidence = 0.999;
   // D&C: damped Gauss–Newton passes that estimate() makes through the whole tree of joins,
   // rebuilding every kept local map from its own odometry and measurements and redoing every
   // join, all linearised at the previous pass's map (join_tree.hpp, leaf_relinearisation.hpp);

@@ -114,7 +114,8 @@ VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
 // The filter options for the park, the one preset that the Python package
 // (VictoriaPark.slam_config()) and dcslam_bench both start from: range–bearing from the laser at
 // laser_offset, JCBB inside local maps, RJC at joins with the trunks' spread in
-// join_feature_sigma (docs/victoria_park.md); SlamConfig's defaults elsewhere.
+// join_feature_sigma, and gate_confidence at every join (docs/victoria_park.md); SlamConfig's
+// defaults elsewhere.
 SlamConfig victoria_park_slam_config(const Vec3& laser_offset);
 
 }  // namespace dcslam

@@ -5,7 +5,8 @@
 // (the paper's Algorithm 3, "rjc"). The individual gate only prunes, at a tenth of the
 // decision gate's tail (0.999 for a confidence of 0.99; the overlap counts features with a
 // candidate at that level); pairs are accepted by the joint or conditional test at
-// JoinOptions::rjc.confidence (SlamConfig::gate_confidence).
+// JoinOptions::rjc.confidence (SlamConfig::gate_confidence), or, by RJC on an overlap of at
+// least kLargeOverlap features, at JoinOptions::large_overlap_confidence.
 #include <cstdint>
 #include <optional>
 #include <utility>
@@ -25,6 +26,13 @@ namespace dcslam {
 // RJC runs on an overlap of more than this many samples' worth of features (3 b); a smaller
 // one goes to JCBB with the star node, exact and cheap there (docs/design.md §6).
 inline constexpr int kRjcMinOverlapSamples = 3;
+
+// From this overlap on, RJC decides at JoinOptions::large_overlap_confidence
+// (SlamConfig::large_overlap_confidence). The joins whose relative pose a wider gate let go
+// wrong on the simulator's revisit scenes had overlaps of about 20; whole-lap and whole-map
+// joins have 100 and more. 50 by measurement (docs/data_association.md, "Large overlaps
+// decided at a wider gate").
+inline constexpr int kLargeOverlap = 50;
 
 // Measurement = feature j of the moved m2, feature = feature i of m1; the innovation of the
 // pairing is f'_j - f_i, whose covariance is P_ii + P_jj - P_ij - P_ji in the stacked map,
@@ -112,6 +120,7 @@ class JoinAssociator : public ResumableWork<JoinAssociator> {
   Stage stage_ = Stage::Prepare;
   JoinAssociationResult result_;
   double pruning_gate_ = 0.0;  // the individual gate, chi2(2) at the pruning confidence
+  double confidence_ = 0.0;    // of the decision: rjc.confidence, or large_overlap_confidence
   double gate_radius_ = 0.0;
   double sigma_first_ = 0.0;
   std::vector<double> sigma_second_;

@@ -53,6 +53,9 @@ struct JoinOptions {
   // in every mode (JCBB's too, and the pruning gate's is derived from it); rjc.seed is the
   // join's random stream.
   RjcOptions rjc;
+  // RJC's confidence instead of rjc.confidence on an overlap of at least kLargeOverlap
+  // features (join_association.hpp; SlamConfig::large_overlap_confidence).
+  double large_overlap_confidence = 0.999;
   double feature_sigma = 0.0;  // SlamConfig::join_feature_sigma
   // Interpretation-tree nodes of the JCBB that decides in "rjc" mode when every RJC try failed,
   // so that the fallback stays bounded whatever the overlap. ("jcbb" mode: JcbbOptions' bound.)

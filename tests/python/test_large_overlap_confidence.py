@@ -1,0 +1,74 @@
+"""Large overlaps decided at a wider gate (SlamConfig.large_overlap_confidence).
+
+The scene: the simulator's small_loop_laps, seed 14, 10 % clutter, no ids. With one gate
+(0.99) everywhere, a join of two whole laps turns away true pairs and the lap is mapped twice
+(recall 0.78); RJC at 0.999 on overlaps of 50 features or more pairs them (0.93). The oracle
+is the simulator's true landmark of every measurement (dcslam.evaluation). The checkpoint test
+runs the non-default value through a pickle, which must keep it: resumed with the default, the
+run would end as the default run does.
+"""
+
+import dataclasses
+import pickle
+
+import numpy as np
+import pytest
+
+import dcslam
+from dcslam import evaluation
+
+BASE = dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=14)
+ONE_GATE = dataclasses.replace(BASE, large_overlap_confidence=BASE.gate_confidence)
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return dcslam.revisit_scenario("small_loop_laps", 14)
+
+
+def run(sim, config, split=None):
+    """Every step; at step `split` the filter is pickled and the run resumed from the copy."""
+    slam = dcslam.DCSlam(config)
+    returned = []
+    for k, step in enumerate(sim.steps):
+        if k == split:
+            slam = pickle.loads(pickle.dumps(slam))
+        slam.predict(step.u, step.Q)
+        returned.append(slam.update(step.z, step.R))
+    estimate = slam.estimate()
+    return slam, returned, estimate
+
+
+@pytest.fixture(scope="module")
+def runs(sim):
+    return {"default": run(sim, BASE), "one gate": run(sim, ONE_GATE)}
+
+
+def recall(sim, result):
+    slam, returned, estimate = result
+    return evaluation.evaluate_run(slam, estimate, returned, sim).association.pairwise_recall
+
+
+def test_the_default_is_wider_than_the_gate():
+    config = dcslam.SlamConfig()
+    assert config.large_overlap_confidence == 0.999 > config.gate_confidence
+
+
+def test_a_lap_against_a_lap_pairs_its_landmarks(sim, runs):
+    assert recall(sim, runs["default"]) > 0.9
+    assert recall(sim, runs["one gate"]) < 0.85
+
+
+def test_a_checkpoint_keeps_the_value(sim, runs):
+    resumed = run(sim, ONE_GATE, split=len(sim.steps) // 2)
+    for (slam_a, returned_a, a), (slam_b, returned_b, b) in [(runs["one gate"], resumed)]:
+        assert np.array_equal(slam_a.resolve(np.concatenate(returned_a)), slam_b.resolve(np.concatenate(returned_b)))
+        assert np.array_equal(a.landmarks, b.landmarks)
+        assert np.array_equal(a.covariance, b.covariance)
+    assert not np.array_equal(runs["default"][2].landmarks.shape, resumed[2].landmarks.shape) or \
+        not np.array_equal(runs["default"][2].landmarks, resumed[2].landmarks)
+
+
+def test_out_of_range_is_refused():
+    with pytest.raises(ValueError, match="large_overlap_confidence"):
+        dcslam.DCSlam(dataclasses.replace(BASE, large_overlap_confidence=1.0))
