@@ -114,8 +114,10 @@ def test_dc_estimate_never_merges_two_measurements_of_one_scan(scenario):
 
 
 def test_final_merge_confidence_sets_only_the_final_merge():
-    # Seed 2: seed 0 ends with no duplicate left that the wider test would take.
-    sim = dcslam.revisit_scenario("small_loop_laps", seed=2)
+    # Seed 1: seed 0 ends with no duplicate left that the wider test would take; in seed 1 a
+    # second round of the merge met a feature that the first round had merged with a sighting
+    # of the same scan (before each round's merges were recorded for the next).
+    sim = dcslam.revisit_scenario("small_loop_laps", seed=1)
     base = dict(association="jcbb", join_association="rjc")
 
     def final_map(**options):

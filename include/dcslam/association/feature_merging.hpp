@@ -41,8 +41,9 @@ Eigen::Index merge_partner(const GaussianMap& map, Eigen::Index k, double radius
 // Merges every pair of features that are each other's merge_partner(), keeping the one with
 // the smaller id, in rounds until a round merges nothing (at most max_rounds). Returns
 // (merged id, kept id) for each merge. O(n^2) a round for the search, O(n^2) a merge.
+inline constexpr int kMaxMergeRounds = 10;
 std::vector<std::pair<std::int64_t, std::int64_t>> merge_duplicate_features(
     GaussianMap& map, double radius, double gate, double feature_sigma, const MayBeOneLandmark& may_be_one,
-    int max_rounds = 10);
+    int max_rounds = kMaxMergeRounds);
 
 }  // namespace dcslam
