@@ -60,7 +60,7 @@ Index merge_partner(const GaussianMap& map, Index k, double radius, double gate,
 
 std::vector<std::pair<std::int64_t, std::int64_t>> merge_duplicate_features(
     GaussianMap& map, double radius, double gate, double feature_sigma, const MayBeOneLandmark& may_be_one,
-    int max_rounds) {
+    const OnMerge& on_merge, int max_rounds) {
   std::vector<std::pair<std::int64_t, std::int64_t>> merged;
   for (int round = 0; round < max_rounds; ++round) {
     const Index n = map.num_features();
@@ -78,6 +78,7 @@ std::vector<std::pair<std::int64_t, std::int64_t>> merge_duplicate_features(
       const Index keep = k_older ? k : j, drop = k_older ? j : k;
       if (!impose_equal_features(map, keep, drop)) continue;
       merged.emplace_back(map.ids()[static_cast<std::size_t>(drop)], map.ids()[static_cast<std::size_t>(keep)]);
+      if (on_merge) on_merge(merged.back().first, merged.back().second);
       dropped.push_back(drop);
     }
     if (dropped.empty()) break;

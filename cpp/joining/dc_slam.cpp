@@ -818,18 +818,14 @@ void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& se
   // one local map as much as two of different ones: the local EKF's own merge, which has no
   // such term, may have declined a pair this test accepts.
   const double gate = chi2_quantile(2, config_.final_merge_confidence.value_or(config_.gate_confidence));
-  // One round at a time, the round's merges recorded before the next: a feature merged in one
-  // round brings its seen-with list to the one it is kept as, which the next round's partners
-  // must be tested against (two sightings of one scan would otherwise meet in one feature).
-  for (int round = 0; round < kMaxMergeRounds; ++round) {
-    const auto merges = merge_duplicate_features(map, config_.merge_radius, gate, config_.join_feature_sigma,
-                                                 may_be_one, 1);
-    if (merges.empty()) break;
-    for (const auto& [from, to] : merges) {
-      add_alias(aliases, from, to);
-      merge_seen_with(seen_with, from, to);
-    }
-  }
+  // Each merge recorded as it is made: a merged feature's seen-with list goes to the one it is
+  // kept as, which the next round's partners are tested against (two sightings of one scan
+  // would otherwise meet in one feature).
+  merge_duplicate_features(map, config_.merge_radius, gate, config_.join_feature_sigma, may_be_one,
+                           [&](std::int64_t from, std::int64_t to) {
+                             add_alias(aliases, from, to);
+                             merge_seen_with(seen_with, from, to);
+                           });
 }
 
 // estimate() and pose() report a failure the worker found, as every call does, and rolling
