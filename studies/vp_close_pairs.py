@@ -7,17 +7,25 @@ distance, the Mahalanobis distance^2 of f_a - f_b in the final map (the merge's 
 other features are within the merge radius and compatible (the merge's ambiguity rule), and
 whether the EKF's map has a landmark pair at the same place (then it is likely two real trees).
 
-    .venv/bin/python studies/vp_close_pairs.py [--radius 1.0] [--list]
+    .venv/bin/python studies/vp_close_pairs.py [--radius 1.0] [--seed 0] [--list]
+        [--set field=value ...]   (overrides of the preset, both filters, e.g.
+                                   --set large_overlap_confidence=0.999)
 """
 from __future__ import annotations
 
 import argparse
+import pathlib
+import sys
 
 import numpy as np
 from scipy.stats import chi2
 
 import dcslam
 from dcslam.datasets import victoria_park
+
+# The revisit benchmark's override parser, so that both read FIELD=VALUE the same way.
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "benchmarks"))
+from revisit_association import parse_overrides  # noqa: E402
 
 
 def close_pairs(landmarks: np.ndarray, radius: float) -> list[tuple[int, int, float]]:
@@ -52,12 +60,12 @@ def main() -> None:
     parser.add_argument("--radius", type=float, default=1.0, help="a close pair is closer than this (m)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--list", action="store_true", help="print every D&C close pair")
-    parser.add_argument("--final-merge-confidence", type=float, default=None,
-                        help="SlamConfig.final_merge_confidence of both runs (default: unset)")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="a SlamConfig override of the preset, for both runs (repeatable)")
     args = parser.parse_args()
 
     vp = victoria_park()
-    config = vp.slam_config(seed=args.seed, final_merge_confidence=args.final_merge_confidence)
+    config = vp.slam_config(seed=args.seed, **parse_overrides(args.set))
     merge_confidence = config.final_merge_confidence or config.gate_confidence
     gate = float(chi2.ppf(merge_confidence, 2))
     estimates = {}
