@@ -13,18 +13,25 @@ where it is among the join's candidates (``set_join_oracle(..., "among_candidate
 ceiling of a perfect choice behind those gates.
 
 Usage: python studies/mrclam_association.py [--robots 1 2 4] [--data-dir PATH/resampled_50hz]
-       [--settings 0.99:0 0.999:0 0.999:0.2] [--oracle] [--final-merge-confidence 0.999]
-       [--weak-join-pairings 0]
+       [--settings 0.99:0 0.999:0 0.999:0.2] [--oracle] [--set field=value ...]
+       (--set: SlamConfig overrides of every run, e.g. --set final_merge_confidence=0.999
+       --set weak_join_pairings=0)
 """
 
 from __future__ import annotations
 
 import argparse
+import pathlib
+import sys
 
 import numpy as np
 
 import dcslam
 from dcslam import evaluation
+
+# The revisit benchmark's override parser, so that every study reads FIELD=VALUE the same way.
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "benchmarks"))
+from revisit_association import parse_overrides  # noqa: E402
 
 
 def scores(slam, returned, true_ids, data):
@@ -40,11 +47,10 @@ def main() -> None:
     parser.add_argument("--settings", nargs="+", default=["0.99:0", "0.999:0", "0.999:0.1", "0.999:0.2", "0.999:0.3"],
                         help="gate_confidence:join_feature_sigma pairs")
     parser.add_argument("--oracle", action="store_true", help="also the among-candidates join oracle for D&C")
-    parser.add_argument("--final-merge-confidence", type=float, default=None,
-                        help="SlamConfig.final_merge_confidence of every run (default: unset)")
-    parser.add_argument("--weak-join-pairings", type=int, default=dcslam.SlamConfig.weak_join_pairings,
-                        help="SlamConfig.weak_join_pairings of every run (0: weak joins off)")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="a SlamConfig override of every run (repeatable)")
     args = parser.parse_args()
+    overrides = parse_overrides(args.set)
     print(f"{'robot':>5s} {'gate':>6s} {'join sigma':>10s} {'filter':6s} {'P':>6s} {'R':>6s} {'feat/lm':>7s} "
           f"{'wrong':>5s} {'robot err':>9s}")
     for robot in args.robots:
@@ -53,9 +59,8 @@ def main() -> None:
         ekf_done = set()
         for setting in args.settings:
             gate, sigma = (float(value) for value in setting.split(":"))
-            config = data.slam_config(association="jcbb", join_association="rjc", gate_confidence=gate,
-                                      join_feature_sigma=sigma, final_merge_confidence=args.final_merge_confidence,
-                                      weak_join_pairings=args.weak_join_pairings)
+            config = data.slam_config(**{"association": "jcbb", "join_association": "rjc", **overrides,
+                                         "gate_confidence": gate, "join_feature_sigma": sigma})
             rows = []
             if gate not in ekf_done:  # join_feature_sigma does not touch the EKF
                 ekf_done.add(gate)
