@@ -60,9 +60,9 @@ Index merge_partner(const GaussianMap& map, Index k, double radius, double gate,
 
 std::vector<std::pair<std::int64_t, std::int64_t>> merge_duplicate_features(
     GaussianMap& map, double radius, double gate, double feature_sigma, const MayBeOneLandmark& may_be_one,
-    const OnMerge& on_merge, int max_rounds) {
+    const OnMerge& on_merge) {
   std::vector<std::pair<std::int64_t, std::int64_t>> merged;
-  for (int round = 0; round < max_rounds; ++round) {
+  while (true) {
     const Index n = map.num_features();
     std::vector<Index> partner(static_cast<std::size_t>(n));
     for (Index k = 0; k < n; ++k) {

@@ -41,14 +41,14 @@ Eigen::Index merge_partner(const GaussianMap& map, Eigen::Index k, double radius
 // Told of each merge (merged id, kept id) as it is made.
 using OnMerge = std::function<void(std::int64_t, std::int64_t)>;
 
-// Merges every pair of features that are each other's merge_partner(), keeping the one with
-// the smaller id, in rounds until a round merges nothing (at most max_rounds). `on_merge`, if
-// given, hears of each merge before the next round's partner search, so that a may_be_one
-// that follows the merges (D&C's seen-with lists) sees a merged feature's history in the
-// feature it is kept as. Returns (merged id, kept id) for each merge. O(n^2) a round for the
-// search, O(n^2) a merge.
+// Merges every pair of features that are each other's merge_partner(), keeping the one with the
+// smaller id, in rounds until a round merges nothing (at most n rounds: each round that merges
+// removes a feature). `on_merge`, if given, hears of each merge before the next round's partner
+// search, so that a may_be_one that follows the merges (D&C's seen-with lists) sees a merged
+// feature's history in the feature it is kept as. Returns (merged id, kept id) for each merge.
+// O(n^2) a round for the search, O(n^2) a merge.
 std::vector<std::pair<std::int64_t, std::int64_t>> merge_duplicate_features(
     GaussianMap& map, double radius, double gate, double feature_sigma, const MayBeOneLandmark& may_be_one,
-    const OnMerge& on_merge = nullptr, int max_rounds = 10);
+    const OnMerge& on_merge = nullptr);
 
 }  // namespace dcslam
