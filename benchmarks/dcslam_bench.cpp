@@ -64,6 +64,7 @@ Options of sim, scaling, vp and isam:
   --keep-local-map-poses 0|1  D&C keeps the robot at every local map's end  [0]
   --tree-relinearisation N  SlamConfig.tree_relinearisation: passes in estimate()  [0]
   --weak-join-pairings N  SlamConfig.weak_join_pairings (0: off)   [30]
+  --chunked-jcbb-min-overlap N  SlamConfig.chunked_jcbb_min_overlap (0: off)  [100]
   --seed S                                                          [0]
   --json FILE          write per-step times and totals as JSON
 
@@ -324,6 +325,8 @@ void apply_run_options(const Args& args, SlamConfig& config) {
   config.join_feature_sigma = real_number(args, "join-feature-sigma", config.join_feature_sigma);
   config.tree_relinearisation = static_cast<int>(number(args, "tree-relinearisation", config.tree_relinearisation));
   config.weak_join_pairings = static_cast<int>(number(args, "weak-join-pairings", config.weak_join_pairings));
+  config.chunked_jcbb_min_overlap =
+      static_cast<int>(number(args, "chunked-jcbb-min-overlap", config.chunked_jcbb_min_overlap));
   const long keep_poses = number(args, "keep-local-map-poses", 0);
   if (keep_poses != 0 && keep_poses != 1) {
     throw InvalidArgument("dcslam_bench: --keep-local-map-poses expects 0 or 1");

@@ -43,6 +43,7 @@ py::dict join_event_dict(const JoinEvent& event) {
   out["deferred_pairings"] = event.report.deferred_pairings;
   out["alternatives_taken"] = event.report.alternatives_taken;
   out["tries"] = event.report.tries;
+  out["chunked"] = event.report.chunked;
   out["iterations"] = event.report.iterations;
   out["seconds"] = event.report.seconds_total;
   out["seconds_association"] = event.report.seconds_association;

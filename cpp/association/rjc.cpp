@@ -91,43 +91,28 @@ int accept_sequentially(const std::vector<Pairing>& order, int seed_size,
 // pass the individual gate conditioned on all the pairings kept before it, as on JCBB's
 // path: nu_a - C_aK S_K^-1 nu_K with C_aa - C_aK S_K^-1 C_Ka. A wrong pairing that the
 // seed alone cannot refute is refuted by its neighbours. O(k^3) for k pairings, with the
-// factor of S_K grown a block at a time (only its lower triangle is ever read, so it is not
-// cleared).
+// factor of S_K grown a block at a time (ConditionedPairingModel).
 SequentialAcceptance::SequentialAcceptance(const std::vector<Pairing>& order, int seed_size,
                                            std::vector<int>& feature_of,
                                            const PairingModel& model, double gate)
-    : order_(order), seed_size_(seed_size), feature_of_(feature_of), model_(model), gate_(gate) {
-  const auto k = static_cast<Eigen::Index>(order.size());
-  lower_.resize(2 * k, 2 * k);
-  whitened_.resize(2 * k);
-  cross_.resize(2 * k, 2);
-}
-
-void SequentialAcceptance::condition(const Pairing& pairing, Vec2& innovation, Mat2& covariance) {
-  const auto m = static_cast<Eigen::Index>(kept_.size());
-  if (cross_.rows() < 2 * m) cross_.conservativeResize(2 * m, 2);
-  for (Eigen::Index c = 0; c < m; ++c) {
-    cross_.middleRows<2>(2 * c) = model_.covariance(kept_[static_cast<std::size_t>(c)], pairing);
-  }
-  auto cross_kept = cross_.topRows(2 * m);
-  lower_.topLeftCorner(2 * m, 2 * m).triangularView<Eigen::Lower>().solveInPlace(cross_kept);
-  innovation = model_.innovation(pairing) - cross_kept.transpose() * whitened_.head(2 * m);
-  covariance = model_.covariance(pairing, pairing) - cross_kept.transpose() * cross_kept;
-}
+    : order_(order),
+      seed_size_(seed_size),
+      feature_of_(feature_of),
+      gate_(gate),
+      conditioned_(model, static_cast<Eigen::Index>(order.size())) {}
 
 std::int64_t SequentialAcceptance::step_work(std::int64_t kept) {
-  return kPairingCovarianceUnits * (kept + 1) + kept * kept / 2;
+  return ConditionedPairingModel::condition_work(kept);
 }
 
 std::int64_t SequentialAcceptance::step(std::int64_t) {
   const Pairing& pairing = order_[static_cast<std::size_t>(next_)];
-  const auto m = static_cast<Eigen::Index>(kept_.size());
   const bool seed = next_ < seed_size_;
   ++next_;
-  const std::int64_t work = step_work(m);
+  const std::int64_t work = step_work(conditioned_.kept());
   Vec2 innovation;
   Mat2 covariance;
-  condition(pairing, innovation, covariance);
+  conditioned_.condition(pairing, innovation, covariance);
   const Eigen::LLT<Mat2> factor(covariance);
   if (factor.info() != Eigen::Success ||
       (!seed && factor.matrixL().solve(innovation).squaredNorm() > gate_)) {
@@ -135,51 +120,32 @@ std::int64_t SequentialAcceptance::step(std::int64_t) {
     ++removed_;
     return work;
   }
-  keep(pairing, factor, innovation);
+  conditioned_.keep(pairing, factor, innovation);
   return work;
 }
 
-void SequentialAcceptance::keep(const Pairing& pairing, const Eigen::LLT<Mat2>& factor, const Vec2& innovation) {
-  const auto m = static_cast<Eigen::Index>(kept_.size());
-  if (lower_.rows() < 2 * m + 2) {  // only pairings beyond the order (append()) grow it
-    lower_.conservativeResize(2 * m + 2, 2 * m + 2);
-    whitened_.conservativeResize(2 * m + 2);
-  }
-  lower_.block(2 * m, 0, 2, 2 * m) = cross_.topRows(2 * m).transpose();
-  lower_.block<2, 2>(2 * m, 2 * m) = factor.matrixL();
-  whitened_.segment<2>(2 * m) = factor.matrixL().solve(innovation);
-  kept_.push_back(pairing);
-}
-
 double SequentialAcceptance::conditional_distance_sq(const Pairing& pairing) {
-  Vec2 innovation;
-  Mat2 covariance;
-  condition(pairing, innovation, covariance);
-  const Eigen::LLT<Mat2> factor(covariance);
-  if (factor.info() != Eigen::Success) return std::numeric_limits<double>::infinity();
-  return factor.matrixL().solve(innovation).squaredNorm();
+  return conditioned_.conditional_distance_sq(pairing);
 }
 
 bool SequentialAcceptance::append(const Pairing& pairing) {
   Vec2 innovation;
   Mat2 covariance;
-  condition(pairing, innovation, covariance);
+  conditioned_.condition(pairing, innovation, covariance);
   const Eigen::LLT<Mat2> factor(covariance);
   if (factor.info() != Eigen::Success || factor.matrixL().solve(innovation).squaredNorm() > gate_) return false;
-  keep(pairing, factor, innovation);
+  conditioned_.keep(pairing, factor, innovation);
   feature_of_[pairing.measurement] = pairing.feature;
   return true;
 }
 
-double SequentialAcceptance::joint_distance_sq() const {
-  return whitened_.head(2 * static_cast<Eigen::Index>(kept_.size())).squaredNorm();
-}
+double SequentialAcceptance::joint_distance_sq() const { return conditioned_.joint_distance_sq(); }
 
 // Each pairing left costs its covariances with the kept ones and a triangular solve of their
 // factor: about sum over m of (16 m + m^2 / 2) units.
 std::int64_t SequentialAcceptance::remaining_work() const {
   const auto left = static_cast<std::int64_t>(order_.size()) - next_;
-  return work_left(static_cast<std::int64_t>(kept_.size()), left);
+  return work_left(conditioned_.kept(), left);
 }
 
 std::int64_t SequentialAcceptance::work_left(std::int64_t kept, std::int64_t left) {

@@ -174,6 +174,7 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod(c.join_iterations);
   out.pod(c.join_feature_sigma);
   out.pod(c.large_overlap_confidence);
+  out.pod(c.chunked_jcbb_min_overlap);
   out.pod(c.tree_relinearisation);
   out.pod(c.seed);
   out.pod<std::uint8_t>(c.amortize);
@@ -211,6 +212,7 @@ SlamConfig load_config(Reader& in) {
   c.join_iterations = in.pod<int>();
   c.join_feature_sigma = in.pod<double>();
   c.large_overlap_confidence = in.pod<double>();
+  c.chunked_jcbb_min_overlap = in.pod<int>();
   c.tree_relinearisation = in.pod<int>();
   c.seed = in.pod<std::uint64_t>();
   c.amortize = in.flag();
@@ -442,6 +444,7 @@ void save_event(Writer& out, const JoinEvent& e) {
   out.pod(r.overlap);
   out.pod(r.pairings);
   out.pod(r.tries);
+  out.pod<std::uint8_t>(r.chunked);
   out.pod(r.dropped_tentative);
   out.pod(r.deferred_pairings);
   out.pod(r.alternatives_taken);
@@ -465,6 +468,7 @@ JoinEvent load_event(Reader& in) {
   r.overlap = in.pod<int>();
   r.pairings = in.pod<int>();
   r.tries = in.pod<int>();
+  r.chunked = in.flag();
   r.dropped_tentative = in.pod<int>();
   r.deferred_pairings = in.pod<int>();
   r.alternatives_taken = in.pod<int>();

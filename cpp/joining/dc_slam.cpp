@@ -104,6 +104,7 @@ JoinOptions DCSlam::join_options(int index, std::int64_t first_robot_id) const {
   options.association = config_.join_association;
   options.rjc.confidence = config_.gate_confidence;
   options.large_overlap_confidence = config_.large_overlap_confidence;
+  options.chunked_jcbb_min_overlap = config_.chunked_jcbb_min_overlap;
   options.rjc.b = config_.rjc_b;
   options.rjc.p_good = config_.rjc_p_good;
   options.rjc.p_fail = config_.rjc_p_fail;

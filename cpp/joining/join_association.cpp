@@ -72,6 +72,8 @@ std::int64_t JoinAssociator::step(std::int64_t budget) {
       return candidates_of_next();
     case Stage::Rjc:
       return advance_rjc(budget);
+    case Stage::Chunked:
+      return advance_chunked(budget);
     case Stage::Jcbb:
       return run_jcbb();
     case Stage::Done:
@@ -124,6 +126,7 @@ std::int64_t JoinAssociator::candidates_of_next() {
     }
   }
   result_.overlap += compatible.empty() ? 0 : 1;
+  candidate_count_ += static_cast<std::int64_t>(compatible.size());
   const std::int64_t work = 4 + kPairingCovarianceUnits * static_cast<std::int64_t>(nearby_.size());
   if (++next_second_ < static_cast<Index>(candidates_.size())) return work;
 
@@ -150,6 +153,10 @@ std::int64_t JoinAssociator::candidates_of_next() {
   return work;
 }
 
+bool JoinAssociator::chunked_wanted() const {
+  return options_.chunked_jcbb_min_overlap > 0 && result_.overlap >= options_.chunked_jcbb_min_overlap;
+}
+
 std::int64_t JoinAssociator::advance_rjc(std::int64_t budget) {
   const std::int64_t spent = rjc_->advance(budget);
   if (!rjc_->done()) return spent;
@@ -157,10 +164,33 @@ std::int64_t JoinAssociator::advance_rjc(std::int64_t budget) {
   result_.tries = rjc_result.tries;
   if (rjc_result.pairings == 0) {
     stage_ = Stage::Jcbb;
+  } else if (chunked_wanted()) {
+    ChunkedJcbbOptions chunked_options;
+    chunked_options.confidence = confidence_;
+    chunked_options.candidate_gate = pruning_gate_;
+    chunked_options.to_beat = rjc_result.pairings;
+    chunked_.emplace(candidates_, model_, static_cast<int>(frame_.first().num_features()), chunked_options);
+    stage_ = Stage::Chunked;
+    if (chunked_->done()) choose_hypothesis();  // RJC paired the whole overlap
   } else {
     conclude(rjc_result.feature_of);
   }
   return spent;
+}
+
+std::int64_t JoinAssociator::advance_chunked(std::int64_t budget) {
+  const std::int64_t spent = chunked_->advance(budget);
+  if (chunked_->done()) choose_hypothesis();
+  return spent;
+}
+
+void JoinAssociator::choose_hypothesis() {
+  if (chunked_->result().pairings > rjc_->result().pairings) {
+    result_.chunked = true;
+    conclude(chunked_->result().feature_of);
+  } else {
+    conclude(rjc_->result().feature_of);
+  }
 }
 
 // JCBB over the whole overlap in one step: on a small overlap, or where every RJC try failed
@@ -171,11 +201,9 @@ std::int64_t JoinAssociator::run_jcbb() {
   jcbb_options.confidence = options_.rjc.confidence;
   if (options_.association == JoinAssociation::Rjc) jcbb_options.max_nodes = options_.fallback_jcbb_nodes;
   const JcbbResult jcbb_result = jcbb(candidates_, model_, jcbb_options);
-  std::int64_t candidate_count = 0;  // before conclude() releases the lists
-  for (const auto& list : candidates_) candidate_count += static_cast<std::int64_t>(list.size());
   conclude(jcbb_result.feature_of);
   return 1 + kPairingCovarianceUnits *
-                 (candidate_count + jcbb_result.nodes_expanded * std::max(1, jcbb_result.pairings));
+                 (candidate_count_ + jcbb_result.nodes_expanded * std::max(1, jcbb_result.pairings));
 }
 
 bool JoinAssociator::is_candidate(std::size_t second, int first) const {
@@ -270,6 +298,7 @@ void JoinAssociator::conclude(std::vector<int> feature_of) {
     if (i != kStar) result_.pairs.emplace_back(i, static_cast<Index>(j));
   }
   mark_doubtful();
+  chunked_.reset();
   rjc_.reset();
   candidates_ = CandidateLists();
   stage_ = Stage::Done;
@@ -313,7 +342,10 @@ std::int64_t JoinAssociator::remaining_work() const {
     case Stage::Candidates:
       return kPairingCovarianceUnits * static_cast<std::int64_t>(static_cast<Index>(candidates_.size()) - next_second_);
     case Stage::Rjc:
-      return rjc_->remaining_work();
+      return rjc_->remaining_work() +
+             (chunked_wanted() ? ChunkedJcbb::work_estimate(candidate_count_, result_.overlap, ChunkedJcbbOptions().chunk_size) : 0);
+    case Stage::Chunked:
+      return chunked_->remaining_work();
     case Stage::Jcbb:
       return 1 + kPairingCovarianceUnits * result_.overlap;
     case Stage::Done:

@@ -236,6 +236,7 @@ std::int64_t MapJoin::associate_next(std::int64_t budget) {
     }
     report_.overlap = result.overlap;
     report_.tries = result.tries;
+    report_.chunked = result.chunked;
     associator_.reset();
     association_frame_.reset();
   }

@@ -124,6 +124,15 @@ class SlamConfig:
             for good. 0.999 (default) by measurement on the simulator's revisit scenes; set it
             to ``gate_confidence`` for one gate everywhere (docs/data_association.md, "Large
             overlaps decided at a wider gate").
+        chunked_jcbb_min_overlap: D&C: from this overlap on (features of the second map with
+            a candidate; >= 0), a join that RJC has paired is decided a second time by
+            chunked JCBB, and the hypothesis with more pairings is kept: the second map's
+            features in map order, 32 at a time, each chunk by JCBB conditioned on the
+            pairings of the chunks before it, as the EKF pairs sighting after sighting. At a
+            whole-lap join the two maps have drifted apart along the lap, and RJC's tries,
+            seeded on a few pairs drawn from the whole overlap, pair only part of it. 100
+            (default) by measurement on the simulator's revisit scenes; 0: RJC alone
+            (docs/data_association.md, "The EKF's order at large joins").
         tree_relinearisation: D&C: damped Gauss-Newton passes (>= 0) that
             :meth:`~dcslam.DCSlam.estimate` makes through the whole tree of joins: every kept
             local map is rebuilt from its own odometry and measurements, and every join
@@ -163,6 +172,7 @@ class SlamConfig:
     join_iterations: int = 10
     join_feature_sigma: float = 0.01
     large_overlap_confidence: float = 0.999
+    chunked_jcbb_min_overlap: int = 100
     tree_relinearisation: int = 0
     seed: int = 0
     amortize: bool = True

@@ -353,7 +353,8 @@ class DCSlamStats(SlamStats):
             ``pairings``, ``deferred_pairings`` (a weak join's pairs left to the next join's
             decision, or a large join's doubtful pairs, ``cfg.weak_join_pairings``),
             ``alternatives_taken`` (0-2: inputs of which it joined a version other than the
-            one made), ``tries`` (RJC), ``iterations`` (linearisation points of the
+            one made), ``tries`` (RJC), ``chunked`` (its pairs are chunked JCBB's, which
+            paired more than RJC, ``cfg.chunked_jcbb_min_overlap``), ``iterations`` (linearisation points of the
             constraint update, at most ``cfg.join_iterations``; 0 without pairings),
             ``seconds`` (summed over the slices it ran in), ``seconds_association``,
             ``work_units``.

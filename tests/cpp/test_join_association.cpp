@@ -279,6 +279,34 @@ TEST_P(JoinAssociationModes, ResumedInSlicesGivesBitwiseTheSameResult) {
   }
 }
 
+// Chunked JCBB beside RJC (chunked_jcbb_min_overlap = 1: at every join RJC decides), a step at
+// a time or at once: bitwise the same pairs, and the same choice between the two.
+TEST(JoinAssociation, ChunkedJcbbResumedInSlicesGivesBitwiseTheSameResult) {
+  const auto [first, second] = loop_closure_with_clutter();
+  JoinOptions options = options_for(JoinAssociation::Rjc);
+  options.chunked_jcbb_min_overlap = 1;
+  const JoinFrame frame(first, second);
+  const JoinAssociationResult at_once = associate_maps(frame, options);
+  ASSERT_GT(at_once.overlap, kRjcMinOverlapSamples * options.rjc.b);
+  ASSERT_FALSE(at_once.pairs.empty());
+  EXPECT_EQ(count_wrong(at_once.pairs, first, second), 0);
+  JoinAssociator associator(frame, options);
+  std::int64_t calls = 0;
+  while (!associator.done()) {
+    EXPECT_GT(associator.remaining_work(), 0);
+    associator.advance(1);
+    ++calls;
+  }
+  EXPECT_GT(calls, second.num_features() + at_once.overlap);  // chunked JCBB's steps too
+  EXPECT_EQ(associator.result().pairs, at_once.pairs);
+  EXPECT_EQ(associator.result().chunked, at_once.chunked);
+  // Off, RJC's alone: as many pairs or fewer.
+  options.chunked_jcbb_min_overlap = 0;
+  const JoinAssociationResult rjc_alone = associate_maps(frame, options);
+  EXPECT_FALSE(rjc_alone.chunked);
+  EXPECT_LE(rjc_alone.pairs.size(), at_once.pairs.size());
+}
+
 // A square loop driven twice among landmarks a few tenths of a metre apart: m1 is the first
 // lap, m2 the second, and some of their pairs have a rival candidate nearly as close while
 // others have none.

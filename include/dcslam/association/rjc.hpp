@@ -15,6 +15,7 @@
 
 #include "dcslam/core/blocked_cholesky.hpp"
 #include "dcslam/core/resumable_work.hpp"
+#include "dcslam/association/conditioned_model.hpp"
 #include "dcslam/association/jcbb.hpp"
 
 namespace dcslam {
@@ -138,7 +139,7 @@ class SequentialAcceptance : public ResumableWork<SequentialAcceptance> {
   // D^2 of the pairings kept so far, in the order kept: the sum of their distances each
   // conditioned on those before it (the chain rule), so no joint factor is needed for it.
   double joint_distance_sq() const;
-  int kept() const { return static_cast<int>(kept_.size()); }
+  int kept() const { return conditioned_.kept(); }
   // After done(): D^2 of `pairing` conditioned on all the kept pairings (infinity if its
   // conditional covariance is not positive definite), and adding it to them if it passes the
   // gate. O(k^2) each.
@@ -146,20 +147,11 @@ class SequentialAcceptance : public ResumableWork<SequentialAcceptance> {
   bool append(const Pairing& pairing);
 
  private:
-  // nu_a and C_a of `pairing` conditioned on the kept pairings; leaves L^-1 C_Ka in cross_.
-  void condition(const Pairing& pairing, Vec2& innovation, Mat2& covariance);
-  // Grows the factor by the pairing just conditioned (cross_ as condition() left it).
-  void keep(const Pairing& pairing, const Eigen::LLT<Mat2>& factor, const Vec2& innovation);
-
   const std::vector<Pairing>& order_;
   int seed_size_;
   std::vector<int>& feature_of_;
-  const PairingModel& model_;
   double gate_;
-  Eigen::MatrixXd lower_;  // factor of S_K, grown a block at a time
-  Eigen::VectorXd whitened_;
-  Eigen::MatrixXd cross_;
-  std::vector<Pairing> kept_;
+  ConditionedPairingModel conditioned_;  // on the pairings kept so far
   Eigen::Index next_ = 0;
   int removed_ = 0;
 };

@@ -80,6 +80,14 @@ struct SlamConfig {
   // sighting. 0.999 by measurement; on small overlaps a wider gate does let a wrong relative
   // pose win (docs/data_association.md, "Large overlaps decided at a wider gate").
   double large_overlap_confidence = 0.999;
+  // D&C: from this overlap (features of the second map with a candidate) on, a join that RJC
+  // has paired is also decided by chunked JCBB, the second map's features in map order, 32 at
+  // a time, each chunk conditioned on the pairings of those before it (the EKF's order); the
+  // hypothesis with more pairings is kept. At a whole-lap join the maps have drifted apart
+  // along the lap and RJC's tries, seeded on a few pairs drawn from the whole overlap, pair a
+  // fraction of it. 0: RJC alone. 100 by measurement (docs/data_association.md, "The EKF's
+  // order at large joins").
+  int chunked_jcbb_min_overlap = 100;
   // D&C: damped Gauss–Newton passes that estimate() makes through the whole tree of joins,
   // rebuilding every kept local map from its own odometry and measurements and redoing every
   // join, all linearised at the previous pass's map (join_tree.hpp, leaf_relinearisation.hpp);

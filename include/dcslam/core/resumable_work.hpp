@@ -4,7 +4,8 @@
 // computation's sizes allow, and its boundaries depend on the sizes and the unit alone, never
 // on how the steps are spread over calls, so a result is bitwise the same however it is
 // sliced. Every resumable computation (DecidingJoin, MapJoin, JoinAssociator, RjcSearch,
-// SequentialAcceptance, JointCompatibilityEnforcement, ResumableCholesky) is a ResumableWork.
+// SequentialAcceptance, JointCompatibilityEnforcement, ChunkedJcbb, ResumableCholesky) is a
+// ResumableWork.
 #include <algorithm>
 #include <cstdint>
 #include <limits>

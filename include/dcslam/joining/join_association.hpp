@@ -12,6 +12,7 @@
 #include <utility>
 #include <vector>
 
+#include "dcslam/association/chunked_jcbb.hpp"
 #include "dcslam/association/jcbb.hpp"
 #include "dcslam/association/rjc.hpp"
 #include "dcslam/core/gaussian_map.hpp"
@@ -62,6 +63,7 @@ struct JoinAssociationResult {
   std::vector<char> doubtful;  // per pair: a rival candidate within kDoubtfulPairMargin
   int overlap = 0;
   int tries = 0;
+  bool chunked = false;  // the pairs are chunked JCBB's, which paired more than RJC
   std::vector<JoinTruthAudit> truth_audit;  // only with a JoinOracle
   // With a JoinOracle: the association's own pairs, before the oracle corrected them.
   std::vector<std::pair<Eigen::Index, Eigen::Index>> own_pairs;
@@ -75,11 +77,21 @@ JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& 
 
 // associate_maps() as resumable work (ResumableWork), so that an amortized join spreads its
 // association over many steps: a step is the search radii and the spatial hash over m1, the
-// candidates of one m2 feature, RjcSearch advanced by the step's budget, or a whole JCBB, which
-// only runs on small overlaps, where every RJC try failed (node-bounded) or in "jcbb" mode. The
-// steps are the computation associate_maps() does, in the same order, so the result is bitwise
-// the same however the work is sliced. `frame` must outlive the associator, which is neither
-// copied nor moved.
+// candidates of one m2 feature, RjcSearch or ChunkedJcbb advanced by the step's budget, or a
+// whole JCBB, which only runs on small overlaps, where every RJC try failed (node-bounded) or
+// in "jcbb" mode. The steps are the computation associate_maps() does, in the same order, so
+// the result is bitwise the same however the work is sliced. `frame` must outlive the
+// associator, which is neither copied nor moved.
+//
+// At an overlap of at least JoinOptions::chunked_jcbb_min_overlap features, once RJC has paired
+// some, chunked JCBB (chunked_jcbb.hpp) decides too, over the same candidates at the same
+// confidence, and the hypothesis with more pairings is kept (RJC's on a tie). RJC's tries
+// seed the relative pose on a few pairs drawn from the whole overlap; at a whole-lap join the
+// maps have drifted apart along the lap, so pairs that fit near the junction do not fit far
+// from it, and the tries pair a fraction of the overlap. Chunked JCBB starts at the junction
+// (m2's features in map order) and lets each chunk correct the relative pose for the next,
+// as the EKF does sighting by sighting. Neither wins everywhere: chunks alone collapse where
+// an early chunk goes wrong (docs/data_association.md, "The EKF's order at large joins").
 class JoinAssociator : public ResumableWork<JoinAssociator> {
  public:
   JoinAssociator(const JoinFrame& frame, const JoinOptions& options);
@@ -98,10 +110,14 @@ class JoinAssociator : public ResumableWork<JoinAssociator> {
   const JoinAssociationResult& result() const { return result_; }
 
  private:
-  enum class Stage { Prepare, Candidates, Rjc, Jcbb, Done };
+  enum class Stage { Prepare, Candidates, Rjc, Chunked, Jcbb, Done };
   std::int64_t prepare();
   std::int64_t candidates_of_next();
   std::int64_t advance_rjc(std::int64_t budget);
+  std::int64_t advance_chunked(std::int64_t budget);
+  // RJC's hypothesis or chunked JCBB's, whichever pairs more (RJC's on a tie).
+  void choose_hypothesis();
+  bool chunked_wanted() const;
   std::int64_t run_jcbb();
   void conclude(std::vector<int> feature_of);
   // Marks each pair of result_.pairs doubtful or not, from the candidate lists.
@@ -127,8 +143,10 @@ class JoinAssociator : public ResumableWork<JoinAssociator> {
   std::optional<SpatialHash> hash_;
   std::vector<int> nearby_;
   CandidateLists candidates_;
+  std::int64_t candidate_count_ = 0;  // in all the lists
   Eigen::Index next_second_ = 0;  // next m2 feature whose candidates are searched
   std::optional<RjcSearch> rjc_;
+  std::optional<ChunkedJcbb> chunked_;
 };
 
 }  // namespace dcslam

@@ -56,6 +56,10 @@ struct JoinOptions {
   // RJC's confidence instead of rjc.confidence on an overlap of at least kLargeOverlap
   // features (join_association.hpp; SlamConfig::large_overlap_confidence).
   double large_overlap_confidence = 0.999;
+  // From this overlap on, the RJC hypothesis is compared with chunked JCBB's and the one with
+  // more pairings is kept (join_association.hpp; SlamConfig::chunked_jcbb_min_overlap); 0: RJC's
+  // alone.
+  int chunked_jcbb_min_overlap = 100;
   double feature_sigma = 0.0;  // SlamConfig::join_feature_sigma
   // Interpretation-tree nodes of the JCBB that decides in "rjc" mode when every RJC try failed,
   // so that the fallback stays bounded whatever the overlap. ("jcbb" mode: JcbbOptions' bound.)

@@ -43,6 +43,7 @@ struct JoinReport {
   int overlap = 0;   // features of m2 with at least one individually compatible candidate
   int pairings = 0;  // matched pairs imposed as constraints
   int tries = 0;     // RJC hypotheses tried (0 for other modes)
+  bool chunked = false;  // the pairs are chunked JCBB's, which paired more than RJC
   int dropped_tentative = 0;  // tentative features left unmatched (marginalised)
   // A weak join's pairs with a feature seen once, left to the next join's decision
   // (join_alternatives.hpp); 0 when its result is final.

@@ -1,0 +1,62 @@
+#pragma once
+// A PairingModel conditioned on pairings already accepted: the chain rule of the joint
+// compatibility test, one pairing at a time (docs/data_association.md). With the kept
+// pairings K, their stacked innovation nu_K and joint covariance S_K = L L',
+//   nu_a|K  = nu_a  - C_aK S_K^-1 nu_K  = nu_a  - w_a' (L^-1 nu_K),
+//   C_ab|K  = C_ab  - C_aK S_K^-1 C_Kb  = C_ab  - w_a' w_b,        w_a = L^-1 C_Ka,
+// and the joint D^2 of K is the sum of each kept pairing's distance conditioned on those
+// kept before it. The factor L grows by one 2-row block per kept pairing, O(|K|^2).
+#include <cstdint>
+#include <unordered_map>
+#include <vector>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
+
+#include "dcslam/association/jcbb.hpp"
+
+namespace dcslam {
+
+class ConditionedPairingModel : public PairingModel {
+ public:
+  // `base` must outlive the model. `expected_pairings` only sizes the factor ahead.
+  explicit ConditionedPairingModel(const PairingModel& base, Eigen::Index expected_pairings = 0);
+
+  // PairingModel, conditioned on the kept pairings. Each pairing's w_a is computed once
+  // (O(|K|) covariance blocks and a triangular solve, O(|K|^2)) and cached until the next
+  // keep(), so that a search over a few pairings conditioned on many costs O(|K|) a block.
+  // Not thread-safe (the cache).
+  Vec2 innovation(const Pairing& pairing) const override;
+  Mat2 covariance(const Pairing& a, const Pairing& b) const override;
+
+  // nu_a|K and C_aa|K of `pairing`, computed afresh (not cached), leaving its w_a for keep().
+  void condition(const Pairing& pairing, Vec2& innovation, Mat2& covariance);
+  // Adds the pairing last passed to condition() to K, given the factor of its conditional
+  // covariance and its conditional innovation.
+  void keep(const Pairing& pairing, const Eigen::LLT<Mat2>& factor, const Vec2& innovation);
+  // D^2 of `pairing` conditioned on K (infinity if C_aa|K is not positive definite), through
+  // condition().
+  double conditional_distance_sq(const Pairing& pairing);
+
+  int kept() const { return static_cast<int>(kept_.size()); }
+  const std::vector<Pairing>& kept_pairings() const { return kept_; }
+  // D^2 of the kept pairings (chain rule).
+  double joint_distance_sq() const;
+  // The work of condition() with `kept` pairings kept, in units (resumable_work.hpp).
+  static std::int64_t condition_work(std::int64_t kept);
+
+ private:
+  using CrossBlock = Eigen::Matrix<double, Eigen::Dynamic, 2>;
+  // Writes L^-1 C_Ka into `cross` (2|K| x 2).
+  void solve_cross(const Pairing& pairing, CrossBlock& cross) const;
+  const CrossBlock& cached_cross(const Pairing& pairing) const;
+
+  const PairingModel& base_;
+  Eigen::MatrixXd lower_;  // L, grown a block at a time; only its lower triangle is read
+  Eigen::VectorXd whitened_;  // L^-1 nu_K
+  CrossBlock cross_;  // condition()'s w_a, for keep()
+  std::vector<Pairing> kept_;
+  mutable std::unordered_map<std::uint64_t, CrossBlock> cache_;
+};
+
+}  // namespace dcslam

@@ -1,0 +1,212 @@
+// Chunked JCBB (chunked_jcbb.hpp) and the model it conditions (conditioned_model.hpp), against
+// oracles computed densely: the Schur complement of the stacked hypothesis, the chain rule of
+// the joint distance, plain JCBB on one chunk, and the truth of the grid join.
+#include <limits>
+#include <vector>
+
+#include <Eigen/Cholesky>
+#include <gtest/gtest.h>
+
+#include "dcslam/association/chunked_jcbb.hpp"
+#include "dcslam/association/conditioned_model.hpp"
+#include "dcslam/association/jcbb.hpp"
+#include "dcslam/core/chi_square.hpp"
+#include "dcslam/core/errors.hpp"
+#include "grid_join.hpp"
+
+namespace dcslam {
+namespace {
+
+std::vector<Pairing> true_pairings(const JoinProblem& problem) {
+  std::vector<Pairing> pairings;
+  for (std::size_t j = 0; j < problem.truth.size(); ++j) {
+    if (problem.truth[j] != kStar) pairings.push_back(Pairing{static_cast<int>(j), problem.truth[j]});
+  }
+  return pairings;
+}
+
+// D^2 of pairings given as feature_of (the stacked hypothesis, O(k^3)), or +inf.
+double dense_distance_sq(const std::vector<Pairing>& pairings, int measurements, const PairingModel& model) {
+  std::vector<int> feature_of(static_cast<std::size_t>(measurements), kStar);
+  for (const Pairing& p : pairings) feature_of[static_cast<std::size_t>(p.measurement)] = p.feature;
+  return joint_distance_sq(feature_of, model);
+}
+
+TEST(ConditionedPairingModel, IsTheSchurComplementOfTheStackedHypothesis) {
+  const JoinProblem problem = grid_join(3, 0, 6, 3, 9);
+  const std::vector<Pairing> truth = true_pairings(problem);
+  ASSERT_GE(truth.size(), 12u);
+  const std::vector<Pairing> kept(truth.begin(), truth.begin() + 8);
+  ConditionedPairingModel conditioned(problem.model);
+  for (const Pairing& p : kept) {
+    Vec2 innovation;
+    Mat2 covariance;
+    conditioned.condition(p, innovation, covariance);
+    conditioned.keep(p, Eigen::LLT<Mat2>(covariance), innovation);
+  }
+  ASSERT_EQ(conditioned.kept(), 8);
+  const Eigen::Index k = 2 * static_cast<Eigen::Index>(kept.size());
+  Eigen::MatrixXd s(k, k);
+  Eigen::VectorXd nu(k);
+  for (std::size_t a = 0; a < kept.size(); ++a) {
+    nu.segment<2>(2 * static_cast<Eigen::Index>(a)) = problem.model.innovation(kept[a]);
+    for (std::size_t b = 0; b < kept.size(); ++b) {
+      s.block<2, 2>(2 * static_cast<Eigen::Index>(a), 2 * static_cast<Eigen::Index>(b)) =
+          problem.model.covariance(kept[a], kept[b]);
+    }
+  }
+  const Eigen::LDLT<Eigen::MatrixXd> s_factor(s);
+  EXPECT_NEAR(conditioned.joint_distance_sq(), nu.dot(s_factor.solve(nu)), 1e-9);
+  const auto cross = [&](const Pairing& a) {
+    Eigen::MatrixXd c(k, 2);
+    for (std::size_t m = 0; m < kept.size(); ++m) c.middleRows<2>(2 * static_cast<Eigen::Index>(m)) = problem.model.covariance(kept[m], a);
+    return c;
+  };
+  // Pairings of other measurements, true and wrong, each conditioned and against each other.
+  std::vector<Pairing> others(truth.begin() + 8, truth.end());
+  others.push_back(Pairing{truth[9].measurement, truth[10].feature});
+  for (const Pairing& a : others) {
+    const Eigen::MatrixXd c_a = cross(a);
+    const Vec2 expected_nu = problem.model.innovation(a) - c_a.transpose() * s_factor.solve(nu);
+    EXPECT_LT((conditioned.innovation(a) - expected_nu).norm(), 1e-9);
+    for (const Pairing& b : others) {
+      if (b.measurement == a.measurement && b.feature != a.feature) continue;
+      const Mat2 expected = problem.model.covariance(a, b) - c_a.transpose() * s_factor.solve(cross(b));
+      EXPECT_LT((conditioned.covariance(a, b) - expected).norm(), 1e-9 * (1.0 + expected.norm()));
+    }
+  }
+  // The chain rule: a's distance given K is D^2(K + a) - D^2(K).
+  const int measurements = static_cast<int>(problem.truth.size());
+  for (const Pairing& a : others) {
+    std::vector<Pairing> with_a = kept;
+    with_a.push_back(a);
+    const double expected = dense_distance_sq(with_a, measurements, problem.model) -
+                            dense_distance_sq(kept, measurements, problem.model);
+    EXPECT_NEAR(individual_distance_sq(conditioned, a), expected, 1e-7 * (1.0 + expected));
+    EXPECT_NEAR(conditioned.conditional_distance_sq(a), expected, 1e-7 * (1.0 + expected));
+  }
+}
+
+ChunkedJcbbResult run_chunked(const JoinProblem& problem, const ChunkedJcbbOptions& options) {
+  const int features = static_cast<int>(problem.model.first_size);
+  ChunkedJcbb chunked(problem.candidates, problem.model, features, options);
+  chunked.finish();
+  return chunked.result();
+}
+
+TEST(ChunkedJcbb, OneChunkIsJcbb) {
+  for (std::uint64_t seed : {1, 2, 3}) {
+    const JoinProblem problem = grid_join(seed, 0, 6, 3, 9);
+    // A bound no search here reaches: a search cut short depends on how many nodes the lists
+    // of measurements without candidates cost, which one chunk leaves out.
+    ChunkedJcbbOptions options;
+    options.chunk_size = static_cast<int>(problem.candidates.size());
+    options.candidate_gate = std::numeric_limits<double>::infinity();
+    options.max_nodes = 10000000;
+    JcbbOptions jcbb_options;
+    jcbb_options.confidence = options.confidence;
+    jcbb_options.max_nodes = options.max_nodes;
+    const JcbbResult expected = jcbb(problem.candidates, problem.model, jcbb_options);
+    ASSERT_FALSE(expected.bound_hit);
+    const ChunkedJcbbResult result = run_chunked(problem, options);
+    EXPECT_EQ(result.feature_of, expected.feature_of) << "seed " << seed;
+    EXPECT_EQ(result.feature_of, problem.truth);
+    EXPECT_EQ(result.pairings, expected.pairings);
+    EXPECT_EQ(result.chunks, 1);
+    EXPECT_EQ(result.bound_hits, 0);
+  }
+}
+
+// Chunks of one measurement: each takes its nearest unused candidate conditioned on every
+// pairing before it, if that passes both the candidate gate and the 2-dof decision gate. The
+// oracle computes each conditional distance by the chain rule on dense stacked hypotheses.
+TEST(ChunkedJcbb, ChunksOfOneAreNearestNeighbourConditionedOnTheEarlierPairings) {
+  for (std::uint64_t seed : {4, 5}) {
+    const JoinProblem problem = grid_join(seed, 0, 6, 3, 9);
+    ChunkedJcbbOptions options;
+    options.chunk_size = 1;
+    options.candidate_gate = chi2_quantile(2, 0.999);
+    const double gate = std::min(options.candidate_gate, chi2_quantile(2, options.confidence));
+    const int measurements = static_cast<int>(problem.candidates.size());
+    std::vector<Pairing> kept;
+    std::vector<int> expected(problem.candidates.size(), kStar);
+    std::vector<char> used(static_cast<std::size_t>(problem.model.first_size), 0);
+    for (int j = 0; j < measurements; ++j) {
+      const double before = dense_distance_sq(kept, measurements, problem.model);
+      double best = gate;
+      int best_feature = kStar;
+      for (int i : problem.candidates[static_cast<std::size_t>(j)]) {
+        if (used[static_cast<std::size_t>(i)]) continue;
+        std::vector<Pairing> with = kept;
+        with.push_back(Pairing{j, i});
+        const double distance_sq = dense_distance_sq(with, measurements, problem.model) - before;
+        if (distance_sq <= best) {
+          best = distance_sq;
+          best_feature = i;
+        }
+      }
+      if (best_feature == kStar) continue;
+      kept.push_back(Pairing{j, best_feature});
+      used[static_cast<std::size_t>(best_feature)] = 1;
+      expected[static_cast<std::size_t>(j)] = best_feature;
+    }
+    const ChunkedJcbbResult result = run_chunked(problem, options);
+    EXPECT_EQ(result.feature_of, expected) << "seed " << seed;
+    EXPECT_EQ(result.pairings, static_cast<int>(kept.size()));
+  }
+}
+
+TEST(ChunkedJcbb, ResumedInSlicesGivesTheSameResult) {
+  const JoinProblem problem = grid_join(2, 0, 6, 3, 9);
+  ChunkedJcbbOptions options;
+  options.chunk_size = 5;
+  options.candidate_gate = chi2_quantile(2, 0.999);
+  const ChunkedJcbbResult whole = run_chunked(problem, options);
+  ChunkedJcbb sliced(problem.candidates, problem.model, problem.model.first_size, options);
+  int steps = 0;
+  std::int64_t previous_estimate = sliced.remaining_work();
+  EXPECT_GT(previous_estimate, 0);
+  while (!sliced.done()) {
+    EXPECT_GT(sliced.advance(1), 0);
+    ++steps;
+  }
+  EXPECT_EQ(sliced.remaining_work(), 0);
+  EXPECT_GT(steps, static_cast<int>(problem.candidates.size()));
+  EXPECT_EQ(sliced.result().feature_of, whole.feature_of);
+  EXPECT_EQ(sliced.result().chunks, whole.chunks);
+}
+
+// to_beat only stops a search that can no longer pair more: one that ends above it runs as
+// without it, one that cannot reach it stops early.
+TEST(ChunkedJcbb, StopsOnlyWhereItCanNoLongerBeatTheOtherHypothesis) {
+  for (std::uint64_t seed : {2, 4}) {
+    const JoinProblem problem = grid_join(seed, 0, 6, 3, 9);
+    ChunkedJcbbOptions options;
+    options.chunk_size = 4;
+    options.candidate_gate = chi2_quantile(2, 0.999);
+    const ChunkedJcbbResult full = run_chunked(problem, options);
+    ASSERT_GT(full.pairings, 4);
+    options.to_beat = full.pairings - 1;
+    const ChunkedJcbbResult beaten = run_chunked(problem, options);
+    EXPECT_FALSE(beaten.abandoned);
+    EXPECT_EQ(beaten.feature_of, full.feature_of);
+    options.to_beat = full.pairings;
+    const ChunkedJcbbResult tied = run_chunked(problem, options);
+    EXPECT_LE(tied.pairings, full.pairings);
+    EXPECT_LE(tied.chunks, full.chunks);
+    options.to_beat = static_cast<int>(problem.candidates.size());  // more than the overlap
+    const ChunkedJcbbResult hopeless = run_chunked(problem, options);
+    EXPECT_TRUE(hopeless.abandoned);
+    EXPECT_EQ(hopeless.chunks, 0);
+  }
+}
+
+TEST(ChunkedJcbb, RejectsAnEmptyChunk) {
+  const JoinProblem problem = grid_join(2, 0, 6, 3, 9);
+  ChunkedJcbbOptions options;
+  options.chunk_size = 0;
+  EXPECT_THROW(ChunkedJcbb(problem.candidates, problem.model, problem.model.first_size, options), InvalidArgument);
+}
+
+}  // namespace
+}  // namespace dcslam
