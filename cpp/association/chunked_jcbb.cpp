@@ -1,6 +1,7 @@
 #include "dcslam/association/chunked_jcbb.hpp"
 
 #include <algorithm>
+#include <limits>
 
 #include "dcslam/core/errors.hpp"
 
@@ -131,12 +132,7 @@ std::int64_t ChunkedJcbb::keep_next() {
   const std::int64_t work = ConditionedPairingModel::condition_work(conditioned_.kept());
   if (next_kept_ < accepted_.size()) {
     const Pairing pairing = accepted_[next_kept_++];
-    Vec2 innovation;
-    Mat2 covariance;
-    conditioned_.condition(pairing, innovation, covariance);
-    const Eigen::LLT<Mat2> factor(covariance);
-    if (factor.info() == Eigen::Success) {
-      conditioned_.keep(pairing, factor, innovation);
+    if (conditioned_.keep_if_within(pairing, std::numeric_limits<double>::infinity())) {
       feature_used_[static_cast<std::size_t>(pairing.feature)] = 1;
       result_.feature_of[static_cast<std::size_t>(pairing.measurement)] = pairing.feature;
       ++result_.pairings;

@@ -75,6 +75,16 @@ void ConditionedPairingModel::keep(const Pairing& pairing, const Eigen::LLT<Mat2
   cache_.clear();
 }
 
+bool ConditionedPairingModel::keep_if_within(const Pairing& pairing, double gate) {
+  Vec2 innovation;
+  Mat2 covariance;
+  condition(pairing, innovation, covariance);
+  const Eigen::LLT<Mat2> factor(covariance);
+  if (factor.info() != Eigen::Success || factor.matrixL().solve(innovation).squaredNorm() > gate) return false;
+  keep(pairing, factor, innovation);
+  return true;
+}
+
 double ConditionedPairingModel::conditional_distance_sq(const Pairing& pairing) {
   Vec2 innovation;
   Mat2 covariance;

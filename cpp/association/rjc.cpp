@@ -110,17 +110,10 @@ std::int64_t SequentialAcceptance::step(std::int64_t) {
   const bool seed = next_ < seed_size_;
   ++next_;
   const std::int64_t work = step_work(conditioned_.kept());
-  Vec2 innovation;
-  Mat2 covariance;
-  conditioned_.condition(pairing, innovation, covariance);
-  const Eigen::LLT<Mat2> factor(covariance);
-  if (factor.info() != Eigen::Success ||
-      (!seed && factor.matrixL().solve(innovation).squaredNorm() > gate_)) {
+  if (!conditioned_.keep_if_within(pairing, seed ? std::numeric_limits<double>::infinity() : gate_)) {
     feature_of_[pairing.measurement] = kStar;
     ++removed_;
-    return work;
   }
-  conditioned_.keep(pairing, factor, innovation);
   return work;
 }
 
@@ -129,12 +122,7 @@ double SequentialAcceptance::conditional_distance_sq(const Pairing& pairing) {
 }
 
 bool SequentialAcceptance::append(const Pairing& pairing) {
-  Vec2 innovation;
-  Mat2 covariance;
-  conditioned_.condition(pairing, innovation, covariance);
-  const Eigen::LLT<Mat2> factor(covariance);
-  if (factor.info() != Eigen::Success || factor.matrixL().solve(innovation).squaredNorm() > gate_) return false;
-  conditioned_.keep(pairing, factor, innovation);
+  if (!conditioned_.keep_if_within(pairing, gate_)) return false;
   feature_of_[pairing.measurement] = pairing.feature;
   return true;
 }

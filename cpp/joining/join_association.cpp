@@ -157,6 +157,13 @@ bool JoinAssociator::chunked_wanted() const {
   return options_.chunked_jcbb_min_overlap > 0 && result_.overlap >= options_.chunked_jcbb_min_overlap;
 }
 
+ChunkedJcbbOptions JoinAssociator::chunked_options() const {
+  ChunkedJcbbOptions options;
+  options.confidence = confidence_;
+  options.candidate_gate = pruning_gate_;
+  return options;
+}
+
 std::int64_t JoinAssociator::advance_rjc(std::int64_t budget) {
   const std::int64_t spent = rjc_->advance(budget);
   if (!rjc_->done()) return spent;
@@ -165,11 +172,9 @@ std::int64_t JoinAssociator::advance_rjc(std::int64_t budget) {
   if (rjc_result.pairings == 0) {
     stage_ = Stage::Jcbb;
   } else if (chunked_wanted()) {
-    ChunkedJcbbOptions chunked_options;
-    chunked_options.confidence = confidence_;
-    chunked_options.candidate_gate = pruning_gate_;
-    chunked_options.to_beat = rjc_result.pairings;
-    chunked_.emplace(candidates_, model_, static_cast<int>(frame_.first().num_features()), chunked_options);
+    ChunkedJcbbOptions options = chunked_options();
+    options.to_beat = rjc_result.pairings;
+    chunked_.emplace(candidates_, model_, static_cast<int>(frame_.first().num_features()), options);
     stage_ = Stage::Chunked;
     if (chunked_->done()) choose_hypothesis();  // RJC paired the whole overlap
   } else {
@@ -343,7 +348,7 @@ std::int64_t JoinAssociator::remaining_work() const {
       return kPairingCovarianceUnits * static_cast<std::int64_t>(static_cast<Index>(candidates_.size()) - next_second_);
     case Stage::Rjc:
       return rjc_->remaining_work() +
-             (chunked_wanted() ? ChunkedJcbb::work_estimate(candidate_count_, result_.overlap, ChunkedJcbbOptions().chunk_size) : 0);
+             (chunked_wanted() ? ChunkedJcbb::work_estimate(candidate_count_, result_.overlap, chunked_options().chunk_size) : 0);
     case Stage::Chunked:
       return chunked_->remaining_work();
     case Stage::Jcbb:

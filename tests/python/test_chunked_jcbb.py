@@ -11,13 +11,13 @@ must keep it: resumed with the default, the run would end as the default run doe
 """
 
 import dataclasses
-import pickle
 
 import numpy as np
 import pytest
 
 import dcslam
 from dcslam import evaluation
+from dc_runs import pickled, run_dc
 
 BASE = dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=17)
 RJC_ALONE = dataclasses.replace(BASE, chunked_jcbb_min_overlap=0)
@@ -28,21 +28,9 @@ def sim():
     return dcslam.revisit_scenario("long_revisits", 17)
 
 
-def run(sim, config, split=None):
-    """Every step; at step `split` the filter is pickled and the run resumed from the copy."""
-    slam = dcslam.DCSlam(config)
-    returned = []
-    for k, step in enumerate(sim.steps):
-        if k == split:
-            slam = pickle.loads(pickle.dumps(slam))
-        slam.predict(step.u, step.Q)
-        returned.append(slam.update(step.z, step.R))
-    return slam, returned, slam.estimate()
-
-
 @pytest.fixture(scope="module")
 def runs(sim):
-    return {"default": run(sim, BASE), "rjc alone": run(sim, RJC_ALONE)}
+    return {"default": run_dc(sim, BASE), "rjc alone": run_dc(sim, RJC_ALONE)}
 
 
 def association(sim, result):
@@ -71,7 +59,7 @@ def test_only_large_joins_are_decided_by_chunks(runs):
 
 def test_a_checkpoint_keeps_the_value(sim, runs):
     slam_a, returned_a, a = runs["rjc alone"]
-    slam_b, returned_b, b = run(sim, RJC_ALONE, split=len(sim.steps) // 2)
+    slam_b, returned_b, b = run_dc(sim, RJC_ALONE, split=len(sim.steps) // 2, at_split=pickled)
     assert np.array_equal(slam_a.resolve(np.concatenate(returned_a)), slam_b.resolve(np.concatenate(returned_b)))
     assert np.array_equal(a.landmarks, b.landmarks)
     assert np.array_equal(a.covariance, b.covariance)

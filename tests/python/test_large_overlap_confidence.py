@@ -9,13 +9,13 @@ run would end as the default run does.
 """
 
 import dataclasses
-import pickle
 
 import numpy as np
 import pytest
 
 import dcslam
 from dcslam import evaluation
+from dc_runs import pickled, run_dc
 
 BASE = dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=14)
 ONE_GATE = dataclasses.replace(BASE, large_overlap_confidence=BASE.gate_confidence)
@@ -26,22 +26,9 @@ def sim():
     return dcslam.revisit_scenario("small_loop_laps", 14)
 
 
-def run(sim, config, split=None):
-    """Every step; at step `split` the filter is pickled and the run resumed from the copy."""
-    slam = dcslam.DCSlam(config)
-    returned = []
-    for k, step in enumerate(sim.steps):
-        if k == split:
-            slam = pickle.loads(pickle.dumps(slam))
-        slam.predict(step.u, step.Q)
-        returned.append(slam.update(step.z, step.R))
-    estimate = slam.estimate()
-    return slam, returned, estimate
-
-
 @pytest.fixture(scope="module")
 def runs(sim):
-    return {"default": run(sim, BASE), "one gate": run(sim, ONE_GATE)}
+    return {"default": run_dc(sim, BASE), "one gate": run_dc(sim, ONE_GATE)}
 
 
 def recall(sim, result):
@@ -60,7 +47,8 @@ def test_a_lap_against_a_lap_pairs_its_landmarks(sim, runs):
 
 
 def test_a_checkpoint_keeps_the_value(sim, runs):
-    (slam_a, returned_a, a), (slam_b, returned_b, b) = runs["one gate"], run(sim, ONE_GATE, split=len(sim.steps) // 2)
+    slam_a, returned_a, a = runs["one gate"]
+    slam_b, returned_b, b = run_dc(sim, ONE_GATE, split=len(sim.steps) // 2, at_split=pickled)
     assert np.array_equal(slam_a.resolve(np.concatenate(returned_a)), slam_b.resolve(np.concatenate(returned_b)))
     assert np.array_equal(a.landmarks, b.landmarks)
     assert np.array_equal(a.covariance, b.covariance)

@@ -9,13 +9,13 @@ threaded; checkpointed; with an estimate() in the middle), which must not change
 """
 
 import dataclasses
-import pickle
 
 import numpy as np
 import pytest
 
 import dcslam
 from dcslam import evaluation
+from dc_runs import pickled, run_dc
 
 BASE = dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=0)
 
@@ -23,19 +23,6 @@ BASE = dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=0)
 @pytest.fixture(scope="module")
 def sim():
     return dcslam.revisit_scenario("small_loop_laps", 0)
-
-
-def run(sim, config, *, split=None, at_split=None):
-    """Runs every step; at step `split`, `at_split(slam)` may return a replacement filter."""
-    slam = dcslam.DCSlam(config)
-    returned = []
-    for k, step in enumerate(sim.steps):
-        if k == split:
-            slam = at_split(slam) or slam
-        slam.predict(step.u, step.Q)
-        returned.append(slam.update(step.z, step.R))
-    estimate = slam.estimate()
-    return slam, returned, estimate
 
 
 def outcome(slam, returned, estimate):
@@ -50,7 +37,7 @@ def assert_same(a, b):
 
 @pytest.fixture(scope="module")
 def default_run(sim):
-    return run(sim, BASE)
+    return run_dc(sim, BASE)
 
 
 def test_the_option_is_on_by_default():
@@ -58,7 +45,7 @@ def test_the_option_is_on_by_default():
 
 
 def test_a_wrong_pair_at_a_weak_join_is_taken_back(sim, default_run):
-    slam_off, returned_off, estimate_off = run(sim, dataclasses.replace(BASE, weak_join_pairings=0))
+    slam_off, returned_off, estimate_off = run_dc(sim, dataclasses.replace(BASE, weak_join_pairings=0))
     scores_off = evaluation.evaluate_run(slam_off, estimate_off, returned_off, sim).association
     slam_on, returned_on, estimate_on = default_run
     scores_on = evaluation.evaluate_run(slam_on, estimate_on, returned_on, sim).association
@@ -83,7 +70,7 @@ def test_a_wrong_pair_at_a_weak_join_is_taken_back(sim, default_run):
 
 @pytest.mark.parametrize("mode", [dict(amortize=False), dict(threaded_joins=True)])
 def test_immediate_amortized_and_threaded_joins_decide_alike(sim, default_run, mode):
-    assert_same(default_run, run(sim, dataclasses.replace(BASE, **mode)))
+    assert_same(default_run, run_dc(sim, dataclasses.replace(BASE, **mode)))
 
 
 def weak_join_waiting(slam):
@@ -98,13 +85,13 @@ def weak_join_waiting(slam):
 
 def test_a_checkpoint_keeps_a_weak_joins_alternative(sim, default_run):
     split = weak_join_waiting(default_run[0])
-    resumed = run(sim, BASE, split=split, at_split=lambda slam: pickle.loads(pickle.dumps(slam)))
+    resumed = run_dc(sim, BASE, split=split, at_split=pickled)
     assert_same(default_run, resumed)
 
 
 def test_an_estimate_that_decides_on_copies_changes_nothing_after_it(sim, default_run):
     split = weak_join_waiting(default_run[0])
-    assert_same(default_run, run(sim, BASE, split=split, at_split=lambda slam: slam.estimate() and None))
+    assert_same(default_run, run_dc(sim, BASE, split=split, at_split=lambda slam: slam.estimate() and None))
 
 
 def test_joins_by_the_callers_ids_are_never_weak(sim):
@@ -128,7 +115,7 @@ def test_a_wrong_pair_without_a_feature_seen_once_is_taken_back_too():
     true pairs (255 instead of 124); before that version existed the run ended at recall 0.23."""
     sim = dcslam.revisit_scenario("long_revisits", 6)
     config = dataclasses.replace(BASE, seed=6)
-    slam, returned, estimate = run(sim, config)
+    slam, returned, estimate = run_dc(sim, config)
     scores = evaluation.evaluate_run(slam, estimate, returned, sim).association
     assert scores.pairwise_recall > 0.65
     joins = slam.stats.joins
@@ -148,7 +135,7 @@ def test_a_large_joins_doubtful_pairs_are_taken_back():
     the doubtful pairs' damage (recall 0.895, no version taken back)."""
     sim = dcslam.revisit_scenario("long_revisits", 1)
     config = dataclasses.replace(BASE, seed=1, join_feature_sigma=0.0, chunked_jcbb_min_overlap=0)
-    slam, returned, estimate = run(sim, config)
+    slam, returned, estimate = run_dc(sim, config)
     scores = evaluation.evaluate_run(slam, estimate, returned, sim).association
     assert scores.pairwise_recall > 0.78
     joins = slam.stats.joins
@@ -189,7 +176,7 @@ def test_a_weak_fold_join_is_decided_by_the_rest_of_the_fold(fold_scene):
     run ends at recall 0.67 with 1.56 features per landmark. Each of the weak join's versions
     carried through the rest of the fold shows the version to take."""
     config = dataclasses.replace(BASE, seed=2)
-    slam, returned, estimate = run(fold_scene, config)
+    slam, returned, estimate = run_dc(fold_scene, config)
     scores = evaluation.evaluate_run(slam, estimate, returned, fold_scene).association
     assert scores.pairwise_recall > 0.85
     assert scores.features_per_landmark < 1.1
@@ -198,4 +185,4 @@ def test_a_weak_fold_join_is_decided_by_the_rest_of_the_fold(fold_scene):
     assert len(folds) >= 3
     assert_every_listed_pair_is_one_feature(slam, folds)
     # The fold runs on copies: every join schedule gives the same estimate.
-    assert_same((slam, returned, estimate), run(fold_scene, dataclasses.replace(config, threaded_joins=True)))
+    assert_same((slam, returned, estimate), run_dc(fold_scene, dataclasses.replace(config, threaded_joins=True)))

@@ -29,17 +29,14 @@ class ConditionedPairingModel : public PairingModel {
   Vec2 innovation(const Pairing& pairing) const override;
   Mat2 covariance(const Pairing& a, const Pairing& b) const override;
 
-  // nu_a|K and C_aa|K of `pairing`, computed afresh (not cached), leaving its w_a for keep().
-  void condition(const Pairing& pairing, Vec2& innovation, Mat2& covariance);
-  // Adds the pairing last passed to condition() to K, given the factor of its conditional
-  // covariance and its conditional innovation.
-  void keep(const Pairing& pairing, const Eigen::LLT<Mat2>& factor, const Vec2& innovation);
-  // D^2 of `pairing` conditioned on K (infinity if C_aa|K is not positive definite), through
-  // condition().
+  // Adds `pairing` to K if its conditional covariance C_aa|K is positive definite and its D^2
+  // conditioned on K is at most `gate` (infinity: positive definite is enough); false and K
+  // unchanged otherwise. O(|K|^2), computed afresh (not from the cache).
+  bool keep_if_within(const Pairing& pairing, double gate);
+  // D^2 of `pairing` conditioned on K (infinity if C_aa|K is not positive definite).
   double conditional_distance_sq(const Pairing& pairing);
 
   int kept() const { return static_cast<int>(kept_.size()); }
-  const std::vector<Pairing>& kept_pairings() const { return kept_; }
   // D^2 of the kept pairings (chain rule).
   double joint_distance_sq() const;
   // The work of condition() with `kept` pairings kept, in units (resumable_work.hpp).
@@ -47,6 +44,11 @@ class ConditionedPairingModel : public PairingModel {
 
  private:
   using CrossBlock = Eigen::Matrix<double, Eigen::Dynamic, 2>;
+  // nu_a|K and C_aa|K of `pairing`, leaving its w_a in cross_ for keep().
+  void condition(const Pairing& pairing, Vec2& innovation, Mat2& covariance);
+  // Adds the pairing last passed to condition() to K, given the factor of its conditional
+  // covariance and its conditional innovation.
+  void keep(const Pairing& pairing, const Eigen::LLT<Mat2>& factor, const Vec2& innovation);
   // Writes L^-1 C_Ka into `cross` (2|K| x 2).
   void solve_cross(const Pairing& pairing, CrossBlock& cross) const;
   const CrossBlock& cached_cross(const Pairing& pairing) const;

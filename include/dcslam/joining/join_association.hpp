@@ -118,6 +118,8 @@ class JoinAssociator : public ResumableWork<JoinAssociator> {
   // RJC's hypothesis or chunked JCBB's, whichever pairs more (RJC's on a tie).
   void choose_hypothesis();
   bool chunked_wanted() const;
+  // Chunked JCBB's settings at this join (the hypothesis to beat is RJC's, set once known).
+  ChunkedJcbbOptions chunked_options() const;
   std::int64_t run_jcbb();
   void conclude(std::vector<int> feature_of);
   // Marks each pair of result_.pairs doubtful or not, from the candidate lists.
