@@ -18,9 +18,11 @@ JcbbOptions chunk_jcbb_options(const ChunkedJcbbOptions& options) {
 
 }  // namespace
 
-ChunkedJcbb::ChunkModel::ChunkModel(const PairingModel& conditioned, const std::vector<int>& measurements,
+ChunkedJcbb::ChunkModel::ChunkModel(const ConditionedPairingModel& conditioned, const std::vector<int>& measurements,
                                     const CandidateLists& candidates)
-    : conditioned_(conditioned), candidates_(candidates) {
+    : conditioned_(conditioned),
+      candidates_(candidates),
+      block_work_(ConditionedPairingModel::condition_work(0) + conditioned.kept()) {
   for (std::size_t m = 0; m < candidates.size(); ++m) {
     first_slot_.push_back(pairings_.size());
     for (int feature : candidates[m]) pairings_.push_back(Pairing{measurements[m], feature});
@@ -45,6 +47,7 @@ Mat2 ChunkedJcbb::ChunkModel::covariance(const Pairing& a, const Pairing& b) con
   const std::uint64_t key = (static_cast<std::uint64_t>(later) << 32) | earlier;
   auto found = blocks_.find(key);
   if (found == blocks_.end()) {
+    work_ += block_work_;
     found = blocks_.emplace(key, conditioned_.covariance(pairings_[later], pairings_[earlier])).first;
   }
   return slot_a >= slot_b ? found->second : Mat2(found->second.transpose());
@@ -72,8 +75,10 @@ std::int64_t ChunkedJcbb::step(std::int64_t) {
   switch (stage_) {
     case Stage::Gate:
       return gate_next();
-    case Stage::Solve:
-      return solve_chunk();
+    case Stage::Start:
+      return start_chunk();
+    case Stage::Search:
+      return search_chunk();
     case Stage::Keep:
       return keep_next();
     case Stage::Done:
@@ -100,17 +105,30 @@ std::int64_t ChunkedJcbb::gate_next() {
   }
   const bool last = next_ == candidates_.size();
   if (static_cast<int>(chunk_.size()) == options_.chunk_size || last) {
-    stage_ = !chunk_.empty() ? Stage::Solve : Stage::Done;
+    stage_ = !chunk_.empty() ? Stage::Start : Stage::Done;
   }
   return 1 + static_cast<std::int64_t>(list.size()) * ConditionedPairingModel::condition_work(conditioned_.kept());
 }
 
-// The work counts, as a join's JCBB does, a node at a block per pairing.
-std::int64_t ChunkedJcbb::solve_chunk() {
-  std::int64_t slots = 0;
-  for (const auto& list : chunk_candidates_) slots += static_cast<std::int64_t>(list.size());
-  const ChunkModel chunk_model(conditioned_, chunk_, chunk_candidates_);
-  const JcbbResult solved = jcbb_.solve(chunk_candidates_, chunk_model);
+std::int64_t ChunkedJcbb::start_chunk() {
+  chunk_model_.emplace(conditioned_, chunk_, chunk_candidates_);
+  jcbb_.start(chunk_candidates_, *chunk_model_);
+  stage_ = Stage::Search;
+  return 1 + jcbb_.work_done() + chunk_model_->work_done();
+}
+
+// A slice of the search ends at the first node boundary after options.work_unit: it depends on
+// the search alone, not on the budget, so the slicing is the same in every run.
+std::int64_t ChunkedJcbb::search_chunk() {
+  const std::int64_t work_before = jcbb_.work_done() + chunk_model_->work_done();
+  bool searched = false;
+  while (!searched && jcbb_.work_done() + chunk_model_->work_done() - work_before < options_.work_unit) {
+    searched = jcbb_.expand(1);
+  }
+  const std::int64_t work = 1 + jcbb_.work_done() + chunk_model_->work_done() - work_before;
+  if (!searched) return work;
+  const JcbbResult solved = jcbb_.result();
+  chunk_model_.reset();
   ++result_.chunks;
   result_.bound_hits += solved.bound_hit ? 1 : 0;
   accepted_.clear();
@@ -119,8 +137,6 @@ std::int64_t ChunkedJcbb::solve_chunk() {
   }
   next_kept_ = 0;
   stage_ = Stage::Keep;
-  const std::int64_t work = 1 + slots * kPairingCovarianceUnits +
-                            kPairingCovarianceUnits * solved.nodes_expanded * std::max(1, solved.pairings);
   if (accepted_.empty()) keep_next();  // nothing to keep: on to the next chunk
   return work;
 }

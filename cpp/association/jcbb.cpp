@@ -8,6 +8,7 @@
 #include <Eigen/Cholesky>
 
 #include "dcslam/core/errors.hpp"
+#include "dcslam/core/resumable_work.hpp"
 
 namespace dcslam {
 
@@ -82,6 +83,19 @@ JcbbResult Jcbb::solve_ranked(const CandidateLists& ranked_candidates, const Pai
 
 JcbbResult Jcbb::run(const CandidateLists& candidates, const PairingModel& model,
                      const JcbbLikelihood* likelihood, bool ranked) {
+  prepare(candidates, model, likelihood, ranked);
+  expand(std::numeric_limits<std::int64_t>::max());
+  return result();
+}
+
+void Jcbb::start(const CandidateLists& candidates, const PairingModel& model,
+                 const JcbbLikelihood* likelihood) {
+  if (likelihood) check_likelihood(candidates, *likelihood);
+  prepare(candidates, model, likelihood, false);
+}
+
+void Jcbb::prepare(const CandidateLists& candidates, const PairingModel& model,
+                   const JcbbLikelihood* likelihood, bool ranked) {
   check_candidates(candidates);
   model_ = &model;
   likelihood_ = likelihood;
@@ -92,6 +106,7 @@ JcbbResult Jcbb::run(const CandidateLists& candidates, const PairingModel& model
   // distance bound starts pruning sooner. Lists already ranked are searched as they are; the
   // solver's own only grow (shrinking would free them).
   ordered_ = ranked ? &candidates : &ordered_candidates_;
+  work_ = 0;
   if (!ranked) {
     if (ordered_candidates_.size() < static_cast<std::size_t>(m)) {
       ordered_candidates_.resize(static_cast<std::size_t>(m));
@@ -101,6 +116,7 @@ JcbbResult Jcbb::run(const CandidateLists& candidates, const PairingModel& model
       for (int feature : candidates[i]) {
         ranked_.emplace_back(individual_distance_sq(model, Pairing{i, feature}), feature);
       }
+      work_ += kPairingCovarianceUnits * static_cast<std::int64_t>(ranked_.size());
       std::stable_sort(ranked_.begin(), ranked_.end(),
                        [](const auto& a, const auto& b) { return a.first < b.first; });
       auto& ordered = ordered_candidates_[static_cast<std::size_t>(i)];
@@ -135,12 +151,15 @@ JcbbResult Jcbb::run(const CandidateLists& candidates, const PairingModel& model
   best_distance_sq_ = 0.0;
   nodes_ = 0;
   bound_hit_ = false;
+  frames_.clear();
 
   const bool feasible = options_.allow_star || pairable == m;
-  if (feasible) search(0, 0, 0.0, 0.0);
+  if (feasible) enter(0, 0, 0.0, 0.0);
+}
 
+JcbbResult Jcbb::result() {
   JcbbResult result;
-  result.feature_of.assign(static_cast<std::size_t>(m), kStar);
+  result.feature_of.assign(static_cast<std::size_t>(num_measurements_), kStar);
   for (const Pairing& pairing : best_) result.feature_of[pairing.measurement] = pairing.feature;
   result.pairings = static_cast<int>(best_.size());
   result.joint_distance_sq = best_.empty() ? 0.0 : best_distance_sq_;
@@ -170,10 +189,10 @@ void Jcbb::record(int depth, double distance_sq, double score) {
   best_distance_sq_ = distance_sq;
 }
 
-void Jcbb::search(int measurement, int depth, double distance_sq, double score) {
-  if (bound_hit_) return;
+void Jcbb::enter(int measurement, int depth, double distance_sq, double score) {
   if (nodes_ >= options_.max_nodes) {
     bound_hit_ = true;
+    frames_.clear();
     return;
   }
   ++nodes_;
@@ -183,32 +202,56 @@ void Jcbb::search(int measurement, int depth, double distance_sq, double score) 
   if ((complete || options_.allow_star) && can_improve(score, distance_sq)) {
     record(depth, distance_sq, score);
   }
-  if (complete) return;
+  if (!complete) frames_.push_back(Frame{measurement, depth, distance_sq, score, 0, false});
+}
 
-  const double bound_here = score + score_bound_from_[measurement];
-  const double bound_after = score + score_bound_from_[measurement + 1];
-  for (int feature : (*ordered_)[measurement]) {
-    // Re-checked per candidate: the best may have improved inside the previous subtree.
-    if (!can_improve(bound_here, distance_sq)) break;
-    if (feature_in_use(depth, feature)) continue;
-    const Pairing pairing{measurement, feature};
-    double extended_distance_sq = distance_sq;
-    double gain = 0.0;
-    if (!extend(depth, pairing, extended_distance_sq, gain)) continue;
-    if (!can_improve(bound_after + gain, extended_distance_sq)) continue;
-    hypothesis_[depth] = pairing;
-    search(measurement + 1, depth + 1, extended_distance_sq, score + gain);
-    if (bound_hit_) return;
+// Depth first, a node's candidates in rank order and then the star, as the recursion
+//   visit(node): for each candidate c that extends it within the bounds, visit(child c);
+//                then visit(star child) if it can still improve
+// would; the path is kept in frames_ so that the search can stop after any node.
+bool Jcbb::expand(std::int64_t nodes) {
+  const std::int64_t stop_at =
+      nodes_ > std::numeric_limits<std::int64_t>::max() - nodes ? std::numeric_limits<std::int64_t>::max()
+                                                                 : nodes_ + nodes;
+  while (!frames_.empty()) {
+    if (nodes_ >= stop_at) return false;
+    Frame& frame = frames_.back();
+    const std::vector<int>& features = (*ordered_)[static_cast<std::size_t>(frame.measurement)];
+    const double bound_after = frame.score + score_bound_from_[frame.measurement + 1];
+    if (frame.next < features.size()) {
+      const int feature = features[frame.next++];
+      // Re-checked per candidate: the best may have improved inside the previous subtree.
+      if (!can_improve(frame.score + score_bound_from_[frame.measurement], frame.distance_sq)) {
+        frame.next = features.size();
+        continue;
+      }
+      if (feature_in_use(frame.depth, feature)) continue;
+      const Pairing pairing{frame.measurement, feature};
+      double extended_distance_sq = frame.distance_sq;
+      double gain = 0.0;
+      if (!extend(frame.depth, pairing, extended_distance_sq, gain)) continue;
+      if (!can_improve(bound_after + gain, extended_distance_sq)) continue;
+      hypothesis_[frame.depth] = pairing;
+      enter(frame.measurement + 1, frame.depth + 1, extended_distance_sq, frame.score + gain);
+      continue;
+    }
+    if (!frame.star_tried) {
+      frame.star_tried = true;
+      if (options_.allow_star && can_improve(bound_after, frame.distance_sq)) {
+        enter(frame.measurement + 1, frame.depth, frame.distance_sq, frame.score);
+      }
+      continue;
+    }
+    frames_.pop_back();
   }
-  if (options_.allow_star && can_improve(bound_after, distance_sq)) {
-    search(measurement + 1, depth, distance_sq, score);
-  }
+  return true;
 }
 
 bool Jcbb::extend(int depth, const Pairing& pairing, double& distance_sq, double& score_gain) {
   // Appending pairing a to H: with C_Ha = cov(nu_H, nu_a) and X = L^-1 C_Ha, the new factor
   // row is [X', chol(C_aa - X'X)] and the new whitened entry chol(..)^-1 (nu_a - X' w_H).
   const int rows = 2 * depth;
+  work_ += kPairingCovarianceUnits * (depth + 1) + depth * depth / 2;
   // Hypotheses hold a handful of pairings: plain loops beat Eigen's blocked triangular solve
   // and products, whose set-up dominates at these sizes.
   Mat2 schur = model_->covariance(pairing, pairing);

@@ -171,6 +171,34 @@ TEST(ChunkedJcbb, ResumedInSlicesGivesTheSameResult) {
   EXPECT_EQ(sliced.result().chunks, whole.chunks);
 }
 
+// A chunk's JCBB runs over several steps when its search exceeds the work unit, so that an
+// amortized join's step stays short; the result is the same as with the search in one step.
+TEST(ChunkedJcbb, AChunksSearchIsSlicedByTheWorkUnit) {
+  const JoinProblem problem = grid_join(2, 0, 6, 3, 9);
+  ChunkedJcbbOptions options;
+  options.chunk_size = 8;
+  options.candidate_gate = chi2_quantile(2, 0.999);
+  const auto count_steps = [&](std::int64_t work_unit, ChunkedJcbbResult& result) {
+    options.work_unit = work_unit;
+    ChunkedJcbb chunked(problem.candidates, problem.model, problem.model.first_size, options);
+    int steps = 0;
+    while (!chunked.done()) {
+      chunked.advance(1);
+      ++steps;
+    }
+    result = chunked.result();
+    return steps;
+  };
+  ChunkedJcbbResult coarse, fine;
+  const int coarse_steps = count_steps(std::int64_t{1} << 40, coarse);
+  const int fine_steps = count_steps(1, fine);
+  ASSERT_GT(coarse.chunks, 0);
+  EXPECT_GT(fine_steps, coarse_steps + coarse.chunks);
+  EXPECT_EQ(fine.feature_of, coarse.feature_of);
+  EXPECT_EQ(fine.pairings, coarse.pairings);
+  EXPECT_EQ(fine.chunks, coarse.chunks);
+}
+
 // to_beat only stops a search that can no longer pair more: one that ends above it runs as
 // without it, one that cannot reach it stops early.
 TEST(ChunkedJcbb, StopsOnlyWhereItCanNoLongerBeatTheOtherHypothesis) {

@@ -358,6 +358,43 @@ TEST(Jcbb, RankedCandidatesGiveTheSameResult) {
   EXPECT_GT(compared, 50);
 }
 
+// start/expand/result visits the nodes solve() visits, in its order, however the search is
+// sliced: bitwise the same hypothesis, D^2 and node count, with either criterion, with and
+// without the star, and when the node bound cuts the search.
+TEST(Jcbb, SearchInSlicesEqualsTheWholeSearch) {
+  std::mt19937_64 rng(31);
+  int sliced_searches = 0;
+  for (int trial = 0; trial < 120; ++trial) {
+    const Problem problem = random_problem(rng, trial % 3 == 0 ? 8 : 6);
+    const JcbbLikelihood likelihood = random_likelihood(rng, problem);
+    JcbbOptions options;
+    options.allow_star = trial % 4 != 1;
+    options.max_nodes = trial % 5 == 2 ? 7 : 100000;
+    for (const JcbbLikelihood* criterion : {static_cast<const JcbbLikelihood*>(nullptr), &likelihood}) {
+      Jcbb whole_solver(options);
+      const JcbbResult whole = criterion ? whole_solver.solve(problem.candidates, problem.model, *criterion)
+                                         : whole_solver.solve(problem.candidates, problem.model);
+      for (const std::int64_t slice : {1, 3}) {
+        Jcbb solver(options);
+        solver.start(problem.candidates, problem.model, criterion);
+        int slices = 1;
+        while (!solver.expand(slice)) {
+          ++slices;
+          ASSERT_LT(slices, 1000000);
+        }
+        const JcbbResult sliced = solver.result();
+        ASSERT_EQ(sliced.feature_of, whole.feature_of) << "trial " << trial;
+        ASSERT_EQ(sliced.joint_distance_sq, whole.joint_distance_sq) << "trial " << trial;
+        ASSERT_EQ(sliced.nodes_expanded, whole.nodes_expanded) << "trial " << trial;
+        ASSERT_EQ(sliced.bound_hit, whole.bound_hit) << "trial " << trial;
+        ASSERT_GE(slices, whole.nodes_expanded / slice) << "trial " << trial;
+        sliced_searches += slices > 1;
+      }
+    }
+  }
+  EXPECT_GT(sliced_searches, 300);
+}
+
 TEST(Jcbb, EmptyAndUnpairableInputs) {
   LinearScanModel model;
   EXPECT_EQ(jcbb({}, model).pairings, 0);

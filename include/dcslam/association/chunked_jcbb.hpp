@@ -31,6 +31,9 @@ struct ChunkedJcbbOptions {
   // (0.820 and 0.818 over 20 seeds) at a sixth less CPU in all (docs/data_association.md, "The
   // EKF's order at large joins").
   std::int64_t max_nodes = 2000;
+  // Work (units, resumable_work.hpp) after which a step of a chunk's JCBB pauses its search:
+  // what bounds the time of an amortized step, the search being sliced at node boundaries.
+  std::int64_t work_unit = work_units(kDefaultWorkUnit);
   // A hypothesis to beat: the search stops as soon as it can no longer pair more than this
   // (its pairings plus the measurements left with a candidate, checked between chunks), its
   // result then partial and flagged `abandoned`. A search that ends above it is not changed.
@@ -46,8 +49,8 @@ struct ChunkedJcbbResult {
   bool abandoned = false;  // stopped where it could no longer beat options.to_beat
 };
 
-// Resumable (ResumableWork): a step gates one measurement's candidates, solves one chunk, or
-// keeps one of its pairings; the steps depend on the sizes alone, so the result is bitwise
+// Resumable (ResumableWork): a step gates one measurement's candidates, starts a chunk's JCBB
+// (ranks its candidates), expands its search by options.work_unit, or keeps one of its pairings; the steps depend on the sizes alone, so the result is bitwise
 // the same however the work is sliced. `candidates` (per measurement, features 0..n-1 with
 // n = num_features) and `model` must outlive it.
 class ChunkedJcbb : public ResumableWork<ChunkedJcbb> {
@@ -67,9 +70,10 @@ class ChunkedJcbb : public ResumableWork<ChunkedJcbb> {
   const ChunkedJcbbResult& result() const { return result_; }
 
  private:
-  enum class Stage { Gate, Solve, Keep, Done };
+  enum class Stage { Gate, Start, Search, Keep, Done };
   std::int64_t gate_next();
-  std::int64_t solve_chunk();
+  std::int64_t start_chunk();
+  std::int64_t search_chunk();
   std::int64_t keep_next();
   // After a chunk: on to the next, or done (at the end, or when to_beat is out of reach).
   void next_chunk();
@@ -82,10 +86,12 @@ class ChunkedJcbb : public ResumableWork<ChunkedJcbb> {
   // closed at large uncertainty).
   class ChunkModel : public PairingModel {
    public:
-    ChunkModel(const PairingModel& conditioned, const std::vector<int>& measurements,
+    ChunkModel(const ConditionedPairingModel& conditioned, const std::vector<int>& measurements,
                const CandidateLists& candidates);
     Vec2 innovation(const Pairing& pairing) const override;
     Mat2 covariance(const Pairing& a, const Pairing& b) const override;
+    // Work of the blocks computed so far, in units: each a block of the conditioned model.
+    std::int64_t work_done() const { return work_; }
 
    private:
     std::size_t slot(const Pairing& pairing) const;
@@ -95,6 +101,8 @@ class ChunkedJcbb : public ResumableWork<ChunkedJcbb> {
     std::vector<std::size_t> first_slot_;  // per measurement of the chunk
     std::vector<Vec2> innovations_;  // per slot
     mutable std::unordered_map<std::uint64_t, Mat2> blocks_;  // (later slot, earlier slot)
+    std::int64_t block_work_;  // of one block
+    mutable std::int64_t work_ = 0;
   };
 
   const CandidateLists& candidates_;
@@ -110,6 +118,7 @@ class ChunkedJcbb : public ResumableWork<ChunkedJcbb> {
   int overlap_left_ = 0;  // of them, not yet gated
   std::vector<int> chunk_;  // its measurements
   CandidateLists chunk_candidates_;
+  std::optional<ChunkModel> chunk_model_;  // while its JCBB searches
   std::vector<Pairing> accepted_;  // the chunk's pairings (global), to keep
   std::size_t next_kept_ = 0;
 };

@@ -109,12 +109,43 @@ class Jcbb {
   JcbbResult solve_ranked(const CandidateLists& ranked_candidates, const PairingModel& model,
                           const JcbbLikelihood* likelihood = nullptr);
 
+  // The same search in slices, for a caller that must bound the time of each of its steps
+  // (ChunkedJcbb inside an amortized join): start() prepares it (candidates ranked here,
+  // every individual distance computed), expand(n) visits at most n more nodes of the
+  // interpretation tree and returns whether the search is over, result() is then the
+  // solve() result. The nodes are visited in the same order however the search is sliced,
+  // so the result is bitwise solve()'s. `candidates`, `model` and `likelihood` must outlive
+  // the search.
+  void start(const CandidateLists& candidates, const PairingModel& model,
+             const JcbbLikelihood* likelihood = nullptr);
+  bool expand(std::int64_t nodes);
+  JcbbResult result();
+  // Nodes visited and work done since start(), in units (resumable_work.hpp): an extension
+  // of a hypothesis of d pairings asks the model for d + 1 covariance blocks and solves a
+  // triangular system of 2d rows.
+  std::int64_t nodes_expanded() const { return nodes_; }
+  std::int64_t work_done() const { return work_; }
+
  private:
   // Both criteria maximise a score summed over the pairings, then minimise D^2: one per
   // pairing for "most pairings", the gain for the likelihood criterion.
   JcbbResult run(const CandidateLists& candidates, const PairingModel& model,
                  const JcbbLikelihood* likelihood, bool ranked);
-  void search(int measurement, int depth, double distance_sq, double score);
+  void prepare(const CandidateLists& candidates, const PairingModel& model,
+               const JcbbLikelihood* likelihood, bool ranked);
+  // A node of the interpretation tree: the hypothesis of `depth` pairings made for the
+  // measurements before `measurement`. Its candidates are tried from `next` on, then the star.
+  struct Frame {
+    int measurement;
+    int depth;
+    double distance_sq;
+    double score;
+    std::size_t next;
+    bool star_tried;
+  };
+  // Visits a node: counts it, records it if it is the best so far and, unless it is a leaf,
+  // pushes its frame. At the node bound it ends the search instead.
+  void enter(int measurement, int depth, double distance_sq, double score);
   // Tests adding `pairing` to the first `depth` pairings of the current hypothesis; on
   // success writes its block row of the factor, returns the new D^2 in `distance_sq` and
   // the pairing's score in `score_gain`.
@@ -138,10 +169,12 @@ class Jcbb {
   Eigen::VectorXd whitened_;    // L^-1 nu_H
   Eigen::MatrixXd cross_;       // scratch: L^-1 C_Ha
   std::vector<std::pair<double, int>> ranked_;  // scratch for candidate ordering
+  std::vector<Frame> frames_;  // the path from the root to the node being expanded
   std::vector<Pairing> best_;
   double best_score_ = 0.0;
   double best_distance_sq_ = 0.0;
   std::int64_t nodes_ = 0;
+  std::int64_t work_ = 0;
   bool bound_hit_ = false;
 };
 
