@@ -134,9 +134,25 @@ void ConstrainedUpdate::begin_assemble() {
   pose_ids.insert(pose_ids.end(), m2.pose_ids().begin(), m2.pose_ids().end());
   result_.pose_ids() = std::move(pose_ids);
   next_assemble_row_ = 0;
+  next_prefault_column_ = 0;
+}
+
+std::int64_t ConstrainedUpdate::prefault_next() {
+  const Index second_columns = correction_.right_second.cols();
+  const bool second = next_prefault_column_ < second_columns;
+  Eigen::MatrixXd& factor = second ? correction_.right_second : correction_.right_first;
+  const Index begin = second ? next_prefault_column_ : next_prefault_column_ - second_columns;
+  const Index columns = std::min(factor.cols() - begin,
+                                 join_cost::prefault_columns_per_unit(options_.work_unit, factor.rows()));
+  factor.middleCols(begin, columns).setZero();
+  next_prefault_column_ += columns;
+  return join_cost::prefault(columns, factor.rows());
 }
 
 std::int64_t ConstrainedUpdate::assemble_next_rows() {
+  if (next_prefault_column_ < correction_.right_second.cols() + correction_.right_first.cols()) {
+    return prefault_next();
+  }
   const GaussianMap& m1 = first_;
   const GaussianMap& m2 = second_;
   const JoinFrame& frame = frame_;

@@ -66,13 +66,21 @@ Index assemble_rows_per_unit(Index work_unit, Index k) {
   return std::max<Index>(16, work_unit / (kAssembleElementCost * (6 + k)));
 }
 
+// A zeroed element of a fresh matrix: a write, and a 4 KB page fault per 512 of them (about a
+// microsecond). A unit zeroes a quarter of its work's elements (256 KB at the default unit).
+Index prefault_columns_per_unit(Index work_unit, Index rows) {
+  return std::max<Index>(1, work_units(work_unit) / (4 * std::max<Index>(1, rows)));
+}
+std::int64_t prefault(Index columns, Index rows) { return 1 + 4 * static_cast<std::int64_t>(columns * rows); }
+
 // A written element of the result costs a write plus a dot product of length 3 + 2r.
 std::int64_t fill_element(std::int64_t r) { return 1 + work_units(3 + 2 * r); }
 
 // A tile element costs its base (a gather, and for m2 a rotation: about 16 multiply-adds'
-// worth) plus its dot product of length 3 + k.
+// worth) plus its dot product of length 3 + k. A tile is never shorter than the block is wide:
+// the block's first tile mirrors its whole diagonal square (JoinFill::fill_next_tile()).
 Index fill_tile_rows(Index work_unit, Index width, Index k) {
-  return std::max<Index>(64, work_unit / (width * (19 + k)));
+  return std::max<Index>(std::max<Index>(64, width), work_unit / (width * (19 + k)));
 }
 
 }  // namespace dcslam::join_cost

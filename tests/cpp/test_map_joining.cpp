@@ -206,7 +206,9 @@ INSTANTIATE_TEST_SUITE_P(Cases, MapJoiningTest,
                          ::testing::Values(JoinCase{5, 4, 0, 64}, JoinCase{5, 4, 2, 64},
                                            JoinCase{12, 9, 3, 2}, JoinCase{12, 9, 3, 6},
                                            JoinCase{20, 20, 10, 4}, JoinCase{0, 6, 0, 4},
-                                           JoinCase{6, 0, 0, 4}, JoinCase{1, 1, 1, 2}));
+                                           JoinCase{6, 0, 0, 4}, JoinCase{1, 1, 1, 2},
+                                           // blocks wider than the fill's shortest tile
+                                           JoinCase{90, 60, 40, 128}));
 
 // m1's tentative features: those matched by an m2 feature stay, the others are marginalised.
 class MapJoiningTentativeTest : public ::testing::TestWithParam<Index> {};

@@ -32,8 +32,10 @@ struct ChunkedJcbbOptions {
   // EKF's order at large joins").
   std::int64_t max_nodes = 2000;
   // Work (units, resumable_work.hpp) after which a step of a chunk's JCBB pauses its search:
-  // what bounds the time of an amortized step, the search being sliced at node boundaries.
-  std::int64_t work_unit = work_units(kDefaultWorkUnit);
+  // what bounds the time of an amortized step, the search being sliced at node boundaries. A
+  // quarter of a join's unit: the search's units (hashed covariance blocks, small triangular
+  // solves) take 2-3 ns each on Victoria Park, four to five times a join's (BENCHMARKS.md).
+  std::int64_t work_unit = work_units(kDefaultWorkUnit) / 4;
   // A hypothesis to beat: the search stops as soon as it can no longer pair more than this
   // (its pairings plus the measurements left with a candidate, checked between chunks), its
   // result then partial and flagged `abandoned`. A search that ends above it is not changed.

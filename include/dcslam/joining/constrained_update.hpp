@@ -56,6 +56,8 @@ class ConstrainedUpdate {
   std::int64_t solve_next_rows();
   Eigen::Index solve_rows_left() const { return gain_.rows() - next_solve_row_; }
   // The result (covariance not yet written) and the factors of the fill, once assembled.
+  // assemble_next_rows() first zeroes the column-major factors a block of columns a step
+  // (prefault_next()), then assembles a block of rows a step.
   void begin_assemble();
   std::int64_t assemble_next_rows();
   bool assembling() const { return next_assemble_row_ >= 0; }
@@ -82,6 +84,12 @@ class ConstrainedUpdate {
   Eigen::MatrixXd gain_;          // P H' (rows: F1, then all of m2), then W in place
   Eigen::VectorXd whitened_h_;    // h, then L^-1 h
   Eigen::Index next_solve_row_ = 0;
+  // Writes zeros into the next columns of right_second, then of right_first. Their pages are
+  // first touched here, a bounded amount a step: written by the assembly a few rows at a time,
+  // a column-major matrix has every page touched by its first rows, and a freshly mapped one
+  // then faults all its pages in that one step (0.5 ms on Victoria Park's 64-leaf join).
+  std::int64_t prefault_next();
+  Eigen::Index next_prefault_column_ = 0;  // over right_second's columns, then right_first's
   Eigen::Index next_assemble_row_ = -1;  // -1: assembly not begun
   GaussianMap result_;
   LowRankCorrection correction_;

@@ -40,6 +40,10 @@ Eigen::Index solve_rows_per_unit(Eigen::Index work_unit, Eigen::Index block_colu
 // An assembled row (its 6 + k low-rank factors), and the rows of one unit.
 std::int64_t assemble_row(std::int64_t r);
 Eigen::Index assemble_rows_per_unit(Eigen::Index work_unit, Eigen::Index k);
+// Zeroing the low-rank factors before the assembly: the columns of one unit, of `rows` rows,
+// and the work of `columns` of them.
+Eigen::Index prefault_columns_per_unit(Eigen::Index work_unit, Eigen::Index rows);
+std::int64_t prefault(Eigen::Index columns, Eigen::Index rows);
 
 // The fill (JoinFill): a written element of the result, and the rows of one tile of a column
 // block `width` wide.
