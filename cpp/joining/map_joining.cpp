@@ -100,8 +100,8 @@ std::int64_t MapJoin::remaining_work() const {
       return output_work(expected) +
              static_cast<std::int64_t>(solve_rows) * join_cost::solve_row(expected) +
              (expected > 0 ? relinearise_steps * join_cost::relinearise_step(expected) : 0) +
-             (associator_ ? associator_->remaining_work()
-                          : first_->num_features() + second_->num_features());
+             join_cost::kAssociationUnitCost * (associator_ ? associator_->remaining_work()
+                                                            : first_->num_features() + second_->num_features());
     }
     case Phase::Relinearise:
       // At most max_iterations - 1 steps, small next to the fill.
@@ -218,7 +218,8 @@ std::int64_t MapJoin::associate_next(std::int64_t budget) {
       association_frame_ = std::make_unique<JoinFrame>(m1, m2);
       associator_ = std::make_unique<JoinAssociator>(*association_frame_, options_);
     }
-    spent = associator_->advance(budget);
+    spent = join_cost::kAssociationUnitCost *
+            associator_->advance(std::max<std::int64_t>(1, budget / join_cost::kAssociationUnitCost));
     if (!associator_->done()) return spent;
     const JoinAssociationResult& result = associator_->result();
     pairs_ = result.pairs;

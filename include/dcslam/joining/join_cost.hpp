@@ -29,6 +29,12 @@ std::int64_t step_solve(Eigen::Index ds, Eigen::Index r);
 // m2 moved to the point found: m2's rows of P0 g.
 std::int64_t relinearise_finish(std::int64_t second_dim, std::int64_t r);
 
+// The association's units (JoinAssociator, RJC, chunked JCBB), in a join's: on Victoria Park
+// they take 2-7 ns each (hashed and scattered covariance blocks of a large P), a join's fill
+// about 2, so a budget spent on association took three times its share of a step
+// (BENCHMARKS.md, "Where Victoria Park's worst amortized steps come from").
+constexpr std::int64_t kAssociationUnitCost = 3;
+
 // The constrained update (ConstrainedUpdate): pairs whose columns of P H' make one unit and
 // the work of `pairs` of them over `rows` rows; S = H P H' from them.
 constexpr Eigen::Index kPairsPerUnit = 16;
