@@ -114,18 +114,16 @@ std::int64_t ChunkedJcbb::start_chunk() {
   chunk_model_.emplace(conditioned_, chunk_, chunk_candidates_);
   jcbb_.start(chunk_candidates_, *chunk_model_);
   stage_ = Stage::Search;
-  return 1 + jcbb_.work_done() + chunk_model_->work_done();
+  return 1 + chunk_work();
 }
 
 // A slice of the search ends at the first node boundary after options.work_unit: it depends on
 // the search alone, not on the budget, so the slicing is the same in every run.
 std::int64_t ChunkedJcbb::search_chunk() {
-  const std::int64_t work_before = jcbb_.work_done() + chunk_model_->work_done();
+  const std::int64_t work_before = chunk_work();
   bool searched = false;
-  while (!searched && jcbb_.work_done() + chunk_model_->work_done() - work_before < options_.work_unit) {
-    searched = jcbb_.expand(1);
-  }
-  const std::int64_t work = 1 + jcbb_.work_done() + chunk_model_->work_done() - work_before;
+  while (!searched && chunk_work() - work_before < options_.work_unit) searched = jcbb_.expand(1);
+  const std::int64_t work = 1 + chunk_work() - work_before;
   if (!searched) return work;
   const JcbbResult solved = jcbb_.result();
   chunk_model_.reset();

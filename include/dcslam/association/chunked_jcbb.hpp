@@ -52,8 +52,9 @@ struct ChunkedJcbbResult {
 };
 
 // Resumable (ResumableWork): a step gates one measurement's candidates, starts a chunk's JCBB
-// (ranks its candidates), expands its search by options.work_unit, or keeps one of its pairings; the steps depend on the sizes alone, so the result is bitwise
-// the same however the work is sliced. `candidates` (per measurement, features 0..n-1 with
+// (ranks its candidates), expands its search by options.work_unit, or keeps one of its
+// pairings; the steps depend on the sizes and the search alone, so the result is bitwise the
+// same however the work is sliced. `candidates` (per measurement, features 0..n-1 with
 // n = num_features) and `model` must outlive it.
 class ChunkedJcbb : public ResumableWork<ChunkedJcbb> {
  public:
@@ -76,6 +77,8 @@ class ChunkedJcbb : public ResumableWork<ChunkedJcbb> {
   std::int64_t gate_next();
   std::int64_t start_chunk();
   std::int64_t search_chunk();
+  // Work of the current chunk's JCBB and of the covariance blocks it computed, so far.
+  std::int64_t chunk_work() const { return jcbb_.work_done() + chunk_model_->work_done(); }
   std::int64_t keep_next();
   // After a chunk: on to the next, or done (at the end, or when to_beat is out of reach).
   void next_chunk();

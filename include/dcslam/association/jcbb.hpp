@@ -120,10 +120,9 @@ class Jcbb {
              const JcbbLikelihood* likelihood = nullptr);
   bool expand(std::int64_t nodes);
   JcbbResult result();
-  // Nodes visited and work done since start(), in units (resumable_work.hpp): an extension
-  // of a hypothesis of d pairings asks the model for d + 1 covariance blocks and solves a
-  // triangular system of 2d rows.
-  std::int64_t nodes_expanded() const { return nodes_; }
+  // Work done since start(), in units (resumable_work.hpp): an extension of a hypothesis of
+  // d pairings asks the model for d + 1 covariance blocks and solves a triangular system of
+  // 2d rows.
   std::int64_t work_done() const { return work_; }
 
  private:
