@@ -304,9 +304,11 @@ std::int64_t RjcSearch::step(std::int64_t budget) {
     case Stage::CompleteTry:
       return complete_try();
     case Stage::VerifyTry: {
+      // Stopped once its removals leave the try unable to beat the best one: the rest of its
+      // verification could only remove more.
       SequentialAcceptance& acceptance = *try_verification_->acceptance;
       const std::int64_t work = acceptance.step(budget);
-      if (acceptance.done()) end_of_try();
+      if (acceptance.done() || !can_beat_best(try_pairings_ - acceptance.removed())) end_of_try();
       return work;
     }
     case Stage::Sequential:
@@ -502,10 +504,11 @@ std::int64_t RjcSearch::complete_try() {
   const auto c = static_cast<std::int64_t>(conditional_.size());
   const std::int64_t work = 1 + c * (4 + work_units(static_cast<std::int64_t>(used_features_.size()))) +
                             work_units(static_cast<std::int64_t>(feature_of_.size()));
-  if (options_.verify && pairings > options_.b) {
+  if (options_.verify && pairings > options_.b && can_beat_best(pairings)) {
     // Scored once verified (see rjc()), a pairing per step like the final verification; the
     // kept hypothesis is the try's own, and if it is the best this verification is the final
-    // one's (verify_next()).
+    // one's (verify_next()). A verification only removes pairings, so a try that cannot beat
+    // the best one unverified is not verified at all.
     if (!try_verification_) try_verification_ = std::make_unique<TryVerification>();
     begin_verification(*try_verification_, order_, feature_of_);
     stage_ = Stage::VerifyTry;
@@ -522,10 +525,14 @@ void RjcSearch::begin_verification(TryVerification& verification, const std::vec
   verification.acceptance.emplace(verification.order, options_.b, verification.feature_of, model_, gate_);
 }
 
+bool RjcSearch::can_beat_best(int pairings) const {
+  return pairings > best_pairings_ || (pairings == best_pairings_ && try_score_ < best_score_);
+}
+
 void RjcSearch::end_of_try() {
   const bool verified = try_verification_ && try_verification_->acceptance;
   if (verified) try_pairings_ -= try_verification_->acceptance->removed();
-  if (try_pairings_ > best_pairings_ || (try_pairings_ == best_pairings_ && try_score_ < best_score_)) {
+  if (can_beat_best(try_pairings_)) {
     best_pairings_ = try_pairings_;
     best_score_ = try_score_;
     result_.feature_of = feature_of_;

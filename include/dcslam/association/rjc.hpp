@@ -76,7 +76,10 @@ struct RjcResult {
 // each must pass the gate conditioned on all those kept before it (accept_sequentially();
 // O(k^3) for k pairings). Unverified, a wrong seed whose conditional gates are wide (a
 // compact seed leaves the rotation loose) collects chance pairings in a dense map and can
-// outnumber the truth. After each try p_good = max(p_good, pairings(best) / |O|) and the
+// outnumber the truth. A verification only removes pairings, so a try whose count cannot beat
+// the best try's is not verified, and a verification stops once its removals leave it unable
+// to: the best try is the same, and on large overlaps (a revisit) most tries' O(k^3) is saved.
+// After each try p_good = max(p_good, pairings(best) / |O|) and the
 // number of tries becomes t = log(p_fail) / log(1 - p_good^b); tries continue while
 // tries < min(t, max_tries) (9 tries at the defaults).
 //
@@ -219,6 +222,8 @@ class RjcSearch : public ResumableWork<RjcSearch> {
   std::int64_t complete_try();
   void end_of_tries();
   void end_of_try();  // the try's verified score against the best
+  // Whether a try of `pairings` pairings (and the current try's score) would replace the best.
+  bool can_beat_best(int pairings) const;
   void draw_uniform_sample();
   bool draw_constellation();  // false if fewer than b measurements of O
   std::int64_t completion_next();
