@@ -763,6 +763,10 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
     // weak only from kMinWeakJoinLeaves on.
     if (!state.joined.alternative || state.leaves < kMinWeakJoinLeaves) continue;
     if (decide_by_rest) return decide_by_rest_of_fold(std::move(state), inputs, position + 1);
+    if (!state.next_join_decided) {
+      state.first_decided_by_next = std::make_shared<const FoldState>(state);
+      state.first_decided_by_next_position = position + 1;
+    }
     state.next_join_decided = true;
   }
   return state;
@@ -775,7 +779,7 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
   // seen once, and the last fold join then finds 88 of its 189 true pairs as candidates).
   const std::shared_ptr<const JoinAlternative> alternative = std::move(state.joined.alternative);
   const std::size_t weak = position - 1;  // the weak join's record
-  FoldState best, best_start;
+  FoldState best;
   std::size_t best_pairs = 0;
   for (int version = 0; version <= static_cast<int>(alternative->versions.size()); ++version) {
     FoldState start = state;
@@ -785,17 +789,21 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
       start.records[weak].pairs = alternative->ids_of(version).record_pairs();
     }
     record_ids(alternative->ids_of(version), start.aliases, start.seen_with);
-    FoldState rest = fold(start, inputs, position, /*decide_by_rest=*/false);
+    FoldState rest = fold(std::move(start), inputs, position, /*decide_by_rest=*/false);
     std::size_t pairs = 0;
     for (std::size_t k = weak; k < rest.records.size(); ++k) pairs += rest.records[k].pairs.size();
     if (version == 0 || pairs > best_pairs) {
       best = std::move(rest);
-      best_start = std::move(start);
       best_pairs = pairs;
     }
   }
   if (!best.next_join_decided) return best;
-  return fold(std::move(best_start), inputs, position, /*decide_by_rest=*/true);
+  // The fold from the best version deciding by the rest would make best's joins again up to
+  // its first weak join, and decide that one by the rest from the same state.
+  FoldState from = *best.first_decided_by_next;
+  const std::size_t next = best.first_decided_by_next_position;
+  best = FoldState{};
+  return decide_by_rest_of_fold(std::move(from), inputs, next);
 }
 
 void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& seen_with,

@@ -223,6 +223,11 @@ class DCSlam : public SlamFilter {
     std::int64_t leaves = 1;  // local maps folded, the open one included
     // A weak fold join that the rest of the fold would decide was decided by the next join.
     bool next_join_decided = false;
+    // The first such join: the state the fold had just after it, and the position after it.
+    // A fold that decides by the rest reaches the same state there, so decide_by_rest_of_fold()
+    // goes on from it instead of making the joins before it again.
+    std::shared_ptr<const FoldState> first_decided_by_next;
+    std::size_t first_decided_by_next_position = 0;
   };
   // Folds `inputs` (the stack, top first) from `position` on into `state`. With
   // `decide_by_rest`, each weak fold join of kMinWeakJoinLeaves local maps or more is decided
