@@ -763,11 +763,10 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
     // weak only from kMinWeakJoinLeaves on.
     if (!state.joined.alternative || state.leaves < kMinWeakJoinLeaves) continue;
     if (decide_by_rest) return decide_by_rest_of_fold(std::move(state), inputs, position + 1);
-    if (!state.next_join_decided) {
+    if (!state.first_decided_by_next) {
       state.first_decided_by_next = std::make_shared<const FoldState>(state);
       state.first_decided_by_next_position = position + 1;
     }
-    state.next_join_decided = true;
   }
   return state;
 }
@@ -797,7 +796,7 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
       best_pairs = pairs;
     }
   }
-  if (!best.next_join_decided) return best;
+  if (!best.first_decided_by_next) return best;
   // The fold from the best version deciding by the rest would make best's joins again up to
   // its first weak join, and decide that one by the rest from the same state.
   FoldState from = *best.first_decided_by_next;

@@ -221,9 +221,8 @@ class DCSlam : public SlamFilter {
     SeenWith seen_with;
     std::vector<JoinPairingRecord> records;
     std::int64_t leaves = 1;  // local maps folded, the open one included
-    // A weak fold join that the rest of the fold would decide was decided by the next join.
-    bool next_join_decided = false;
-    // The first such join: the state the fold had just after it, and the position after it.
+    // Set when a weak fold join that the rest of the fold would decide was decided by the next
+    // join: the state the fold had just after the first such join, and the position after it.
     // A fold that decides by the rest reaches the same state there, so decide_by_rest_of_fold()
     // goes on from it instead of making the joins before it again.
     std::shared_ptr<const FoldState> first_decided_by_next;
