@@ -1,0 +1,60 @@
+"""Where a run's time goes on scenes seen again, without ids: per run, the steps (``predict`` +
+``update``, timed from Python), the worst step, the final ``estimate()``, and the association
+scores, so that a cost and what it buys are read side by side. The revisit scenes and the
+paper's trajectories (600 steps) at 10 % clutter, JCBB in the EKF and the local maps, RJC at
+the joins, as ``revisit_association.py`` runs them.
+
+Usage: python benchmarks/revisit_cost.py [--scenarios long_revisits,loop] [--seeds 3]
+       [--filters ekf,dc] [--set FIELD=VALUE ...]   (SlamConfig overrides)
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import dcslam
+from dcslam import evaluation
+from revisit_association import PAPER_TRAJECTORIES, parse_overrides
+
+
+def simulation(name: str, seed: int):
+    if name in dcslam.REVISIT_SCENARIOS:
+        return dcslam.revisit_scenario(name, seed)
+    if name in PAPER_TRAJECTORIES:
+        return dcslam.simulate(name, steps=600, seed=seed, clutter=0.1)
+    raise SystemExit(f"unknown scene {name!r}: one of {', '.join([*dcslam.REVISIT_SCENARIOS, *PAPER_TRAJECTORIES])}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scenarios", default="long_revisits,loop")
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--filters", default="ekf,dc")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
+    args = parser.parse_args()
+    overrides = {"association": "jcbb", "join_association": "rjc", **parse_overrides(args.set)}
+    print(f"{'scene':16s} {'seed':>4s} {'filter':6s} {'steps s':>8s} {'worst ms':>8s} {'estimate s':>10s} "
+          f"{'R':>6s} {'P':>6s}")
+    for name in args.scenarios.split(","):
+        for seed in range(args.seeds):
+            sim = simulation(name, seed)
+            for filter_name in args.filters.split(","):
+                config = dcslam.SlamConfig(seed=seed, **overrides)
+                slam = dcslam.DCSlam(config) if filter_name == "dc" else dcslam.EkfSlam(config)
+                returned, steps = [], []
+                for step in sim.steps:
+                    start = time.perf_counter()
+                    slam.predict(step.u, step.Q)
+                    returned.append(slam.update(step.z, step.R))
+                    steps.append(time.perf_counter() - start)
+                start = time.perf_counter()
+                estimate = slam.estimate()
+                estimate_seconds = time.perf_counter() - start
+                scores = evaluation.evaluate_run(slam, estimate, returned, sim).association
+                print(f"{name:16s} {seed:4d} {filter_name:6s} {sum(steps):8.2f} {max(steps) * 1e3:8.1f} "
+                      f"{estimate_seconds:10.2f} {scores.pairwise_recall:6.3f} {scores.pairwise_precision:6.3f}")
+
+
+if __name__ == "__main__":
+    main()
