@@ -718,51 +718,59 @@ TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settle
   return decided.tree_map();
 }
 
+std::shared_ptr<JoinAssociationMemo> DCSlam::FoldAssociations::memo(const std::shared_ptr<const GaussianMap>& first,
+                                                                    const std::shared_ptr<const GaussianMap>& second,
+                                                                    std::size_t position) {
+  // A map no longer alive cannot be joined again, and its address may be another map's now.
+  entries_.erase(std::remove_if(entries_.begin(), entries_.end(),
+                                [](const Entry& entry) { return entry.first.expired() || entry.second.expired(); }),
+                 entries_.end());
+  for (const Entry& entry : entries_) {
+    if (entry.position == position && entry.first.lock() == first && entry.second.lock() == second) {
+      return entry.memo;
+    }
+  }
+  entries_.push_back(Entry{first, second, position, std::make_shared<JoinAssociationMemo>()});
+  return entries_.back().memo;
+}
+
 DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& inputs, std::size_t position,
-                               bool decide_by_rest) const {
+                               FoldAssociations& associations, bool decide_by_rest,
+                               bool leave_last_join_associated) const {
   for (; position < inputs.size(); ++position) {
     const FoldInput& input = inputs[position];
     for (const JoinIds& ids : input.settled) record_ids(ids, state.aliases, state.seen_with);
-    const int index = -1 - static_cast<int>(position);
-    auto make = [options = join_options(index, input.robot_id)](
+    auto make = [options = join_options(-1 - static_cast<int>(position), input.robot_id), &associations, position](
                     const TreeMap& first, const TreeMap& second, std::shared_ptr<const MapJoin::Pairs> fixed_pairs) {
       JoinOptions join_options = options;
+      if (!fixed_pairs) join_options.association_memo = associations.memo(first.map, second.map, position);
       join_options.fixed_pairs = std::move(fixed_pairs);
       return std::make_unique<MapJoin>(first.map, second.map, std::move(join_options));
     };
     const bool last = position + 1 == inputs.size();
+    const bool associate_only = last && leave_last_join_associated;
     const std::shared_ptr<const JoinAlternative> previous_alternative = state.joined.alternative;
     state.result.reset();  // the join holds its input as long as it needs it
-    DecidingJoin join(input.map, std::move(state.joined), std::move(make), weak_pairings(!last),
-                      /*spans_many_maps=*/true);
-    try {
-      join.finish();  // at most the inputs and the result are alive
-    } catch (const std::exception& error) {
-      throw InvalidArgument("DCSlam::estimate: the join of the stack's map " +
-                            std::to_string(inputs.size() - 1 - position) + " with the maps after it failed: " +
-                            error.what() + "; the filter is unchanged");
-    }
-    state.records.push_back(join.join().pairing_record());
+    auto join = std::make_shared<DecidingJoin>(input.map, std::move(state.joined), std::move(make),
+                                               weak_pairings(!last), /*spans_many_maps=*/true);
+    run_fold_join(*join, inputs, position, associate_only);  // at most the inputs and the result are alive
+    state.records.push_back(join->join().pairing_record());
     // A weak fold join's record lists the pairs of the version this one took (a real join's
     // record is corrected only when a real join decides).
-    if (join.second_version_taken() > 0) {
+    if (join->second_version_taken() > 0) {
       const JoinAlternative& alternative = *previous_alternative;
       state.records[static_cast<std::size_t>(-1 - alternative.join_index)].pairs =
-          alternative.ids_of(join.second_version_taken()).record_pairs();
+          alternative.ids_of(join->second_version_taken()).record_pairs();
     }
-    DecidedJoin decided = join.take_result(
-        [](const TreeMap& first, const TreeMap& second, const MapJoin& made) {
-          return unmatched_tentative(first.tentative, second.tentative, made);
-        },
-        index);
-    for (const JoinIds& ids : decided.settled) record_ids(ids, state.aliases, state.seen_with);
-    state.joined = decided.tree_map();
-    state.result = std::move(decided.map);
-    state.leaves += input.leaves;
+    if (associate_only) {
+      state.last_join = std::move(join);
+      return state;
+    }
+    take_fold_join(state, *join, inputs, position);
     // A weak fold join of fewer local maps is decided by the next join, as a real one would be
     // weak only from kMinWeakJoinLeaves on.
     if (!state.joined.alternative || state.leaves < kMinWeakJoinLeaves) continue;
-    if (decide_by_rest) return decide_by_rest_of_fold(std::move(state), inputs, position + 1);
+    if (decide_by_rest) return decide_by_rest_of_fold(std::move(state), inputs, position + 1, associations);
     if (!state.first_decided_by_next) {
       state.first_decided_by_next = std::make_shared<const FoldState>(state);
       state.first_decided_by_next_position = position + 1;
@@ -771,8 +779,43 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
   return state;
 }
 
+void DCSlam::run_fold_join(DecidingJoin& join, const std::vector<FoldInput>& inputs, std::size_t position,
+                           bool associate_only) {
+  try {
+    if (associate_only) {
+      join.associate();
+    } else {
+      join.finish();
+    }
+  } catch (const std::exception& error) {
+    throw InvalidArgument("DCSlam::estimate: the join of the stack's map " +
+                          std::to_string(inputs.size() - 1 - position) + " with the maps after it failed: " +
+                          error.what() + "; the filter is unchanged");
+  }
+}
+
+void DCSlam::take_fold_join(FoldState& state, DecidingJoin& join, const std::vector<FoldInput>& inputs,
+                            std::size_t position) const {
+  DecidedJoin decided = join.take_result(
+      [](const TreeMap& first, const TreeMap& second, const MapJoin& made) {
+        return unmatched_tentative(first.tentative, second.tentative, made);
+      },
+      -1 - static_cast<int>(position));
+  for (const JoinIds& ids : decided.settled) record_ids(ids, state.aliases, state.seen_with);
+  state.joined = decided.tree_map();
+  state.result = std::move(decided.map);
+  state.leaves += inputs[position].leaves;
+}
+
+void DCSlam::make_last_fold_join(FoldState& state, const std::vector<FoldInput>& inputs) const {
+  const std::shared_ptr<DecidingJoin> join = std::move(state.last_join);
+  const std::size_t position = inputs.size() - 1;
+  run_fold_join(*join, inputs, position, /*associate_only=*/false);
+  take_fold_join(state, *join, inputs, position);
+}
+
 DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vector<FoldInput>& inputs,
-                                                 std::size_t position) const {
+                                                 std::size_t position, FoldAssociations& associations) const {
   // Why not the next join alone: its pairs can favour a version whose wrong pairs make the
   // join after it fail (loop_both_ways seed 2: two wrong pairs of fourteen, both with clutter
   // seen once, and the last fold join then finds 88 of its 189 true pairs as candidates).
@@ -788,7 +831,9 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
       start.records[weak].pairs = alternative->ids_of(version).record_pairs();
     }
     record_ids(alternative->ids_of(version), start.aliases, start.seen_with);
-    FoldState rest = fold(std::move(start), inputs, position, /*decide_by_rest=*/false);
+    // Only the pairs count here, so the last fold join is made for the version kept only.
+    FoldState rest = fold(std::move(start), inputs, position, associations, /*decide_by_rest=*/false,
+                          /*leave_last_join_associated=*/true);
     std::size_t pairs = 0;
     for (std::size_t k = weak; k < rest.records.size(); ++k) pairs += rest.records[k].pairs.size();
     if (version == 0 || pairs > best_pairs) {
@@ -796,13 +841,16 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
       best_pairs = pairs;
     }
   }
-  if (!best.first_decided_by_next) return best;
+  if (!best.first_decided_by_next) {
+    make_last_fold_join(best, inputs);
+    return best;
+  }
   // The fold from the best version deciding by the rest would make best's joins again up to
   // its first weak join, and decide that one by the rest from the same state.
   FoldState from = *best.first_decided_by_next;
   const std::size_t next = best.first_decided_by_next_position;
   best = FoldState{};
-  return decide_by_rest_of_fold(std::move(from), inputs, next);
+  return decide_by_rest_of_fold(std::move(from), inputs, next, associations);
 }
 
 void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& seen_with,
@@ -871,7 +919,8 @@ Estimate DCSlam::estimate() const {
     input.leaves = (*it)->node->leaves;
     inputs.push_back(std::move(input));
   }
-  state = fold(std::move(state), inputs, 0, /*decide_by_rest=*/true);
+  FoldAssociations associations;
+  state = fold(std::move(state), inputs, 0, associations, /*decide_by_rest=*/true);
   inputs.clear();
   IdAliases& aliases = state.aliases;
   std::shared_ptr<GaussianMap> joined = std::move(state.result);

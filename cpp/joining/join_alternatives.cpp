@@ -1,6 +1,7 @@
 #include "dcslam/joining/join_alternatives.hpp"
 
 #include <algorithm>
+#include <limits>
 #include <unordered_set>
 
 namespace dcslam {
@@ -80,6 +81,10 @@ std::int64_t DecidingJoin::step(std::int64_t budget) {
       break;
   }
   return 0;
+}
+
+void DecidingJoin::associate() {
+  while (!associated()) step(std::numeric_limits<std::int64_t>::max());
 }
 
 std::int64_t DecidingJoin::remaining_work() const {

@@ -214,14 +214,18 @@ std::int64_t MapJoin::associate_next(std::int64_t budget) {
     pairs_ = associate_by_id(m1, m2);
     report_.overlap = static_cast<int>(pairs_.size());
   } else {
-    if (!associator_) {
-      association_frame_ = std::make_unique<JoinFrame>(m1, m2);
-      associator_ = std::make_unique<JoinAssociator>(*association_frame_, options_);
+    JoinAssociationMemo* const memo = options_.association_memo.get();
+    if (!(memo && memo->result)) {
+      if (!associator_) {
+        association_frame_ = std::make_unique<JoinFrame>(m1, m2);
+        associator_ = std::make_unique<JoinAssociator>(*association_frame_, options_);
+      }
+      spent = join_cost::kAssociationUnitCost *
+              associator_->advance(std::max<std::int64_t>(1, budget / join_cost::kAssociationUnitCost));
+      if (!associator_->done()) return spent;
+      if (memo) memo->result = associator_->result();
     }
-    spent = join_cost::kAssociationUnitCost *
-            associator_->advance(std::max<std::int64_t>(1, budget / join_cost::kAssociationUnitCost));
-    if (!associator_->done()) return spent;
-    const JoinAssociationResult& result = associator_->result();
+    const JoinAssociationResult& result = memo ? *memo->result : associator_->result();
     pairs_ = result.pairs;
     doubtful_ = result.doubtful;
     for (const JoinTruthAudit& entry : result.truth_audit) {

@@ -279,6 +279,45 @@ TEST_P(JoinAssociationModes, ResumedInSlicesGivesBitwiseTheSameResult) {
   }
 }
 
+// JoinOptions::association_memo: the first join of two maps keeps its association there, and
+// a join of the same maps given the memo takes it instead of searching (estimate()'s fold makes
+// such joins again): bitwise the same map at less work. A memo holding other pairs is what the
+// second join imposes, so the memo is really what it takes.
+TEST(JoinAssociation, AJoinGivenTheMemoOfAnEarlierJoinOfItsMapsMakesTheSameMapWithoutSearching) {
+  const auto [first, second] = loop_closure_with_clutter();
+  const auto m1 = std::make_shared<const GaussianMap>(first);
+  const auto m2 = std::make_shared<const GaussianMap>(second);
+  JoinOptions options = options_for(JoinAssociation::Rjc);
+  options.association_memo = std::make_shared<JoinAssociationMemo>();
+  MapJoin searched(m1, m2, options);
+  searched.finish();
+  ASSERT_TRUE(options.association_memo->result.has_value());
+  ASSERT_GT(searched.report().tries, 0);
+  ASSERT_GT(searched.report().pairings, 1);
+  EXPECT_EQ(options.association_memo->result->pairs, searched.pairs());
+
+  MapJoin remembered(m1, m2, options);
+  remembered.finish();
+  EXPECT_EQ(remembered.pairs(), searched.pairs());
+  EXPECT_EQ(remembered.doubtful(), searched.doubtful());
+  EXPECT_EQ(remembered.report().overlap, searched.report().overlap);
+  EXPECT_EQ(remembered.report().tries, searched.report().tries);
+  EXPECT_LT(remembered.report().work_units, searched.report().work_units);
+  const GaussianMap a = searched.take_result();
+  const GaussianMap b = remembered.take_result();
+  EXPECT_EQ(a.ids(), b.ids());
+  EXPECT_TRUE((a.x().array() == b.x().array()).all());
+  EXPECT_TRUE((a.P().array() == b.P().array()).all());
+
+  JoinAssociationResult fewer = *options.association_memo->result;
+  fewer.pairs.resize(1);
+  fewer.doubtful.resize(1);
+  options.association_memo = std::make_shared<JoinAssociationMemo>(JoinAssociationMemo{fewer});
+  MapJoin imposed(m1, m2, options);
+  imposed.finish();
+  EXPECT_EQ(imposed.pairs(), fewer.pairs);
+}
+
 // Chunked JCBB beside RJC (chunked_jcbb_min_overlap = 1: at every join RJC decides), a step at
 // a time or at once: bitwise the same pairs, and the same choice between the two.
 TEST(JoinAssociation, ChunkedJcbbResumedInSlicesGivesBitwiseTheSameResult) {

@@ -31,6 +31,7 @@
 #include "dcslam/core/config.hpp"
 #include "dcslam/estimation/ekf_slam.hpp"
 #include "dcslam/joining/join_alternatives.hpp"
+#include "dcslam/joining/join_association.hpp"
 #include "dcslam/joining/join_tree.hpp"
 #include "dcslam/joining/map_joining.hpp"
 #include "dcslam/core/slam_filter.hpp"
@@ -227,20 +228,53 @@ class DCSlam : public SlamFilter {
     // goes on from it instead of making the joins before it again.
     std::shared_ptr<const FoldState> first_decided_by_next;
     std::size_t first_decided_by_next_position = 0;
+    // The last fold join, associated but not made, when the fold was asked to leave it so
+    // (make_last_fold_join() makes it): versions compared by their pairs need only its pairs.
+    std::shared_ptr<DecidingJoin> last_join;
+  };
+  // The associations of estimate()'s fold joins (JoinAssociationMemo), by their maps and
+  // position: comparing a weak fold join's versions makes some joins again on the same maps
+  // (a version decided by its next join, then by the rest of the fold).
+  class FoldAssociations {
+   public:
+    // The memo of the fold join at `position` of these maps: empty the first time.
+    std::shared_ptr<JoinAssociationMemo> memo(const std::shared_ptr<const GaussianMap>& first,
+                                              const std::shared_ptr<const GaussianMap>& second,
+                                              std::size_t position);
+
+   private:
+    struct Entry {
+      std::weak_ptr<const GaussianMap> first, second;
+      std::size_t position = 0;
+      std::shared_ptr<JoinAssociationMemo> memo;
+    };
+    std::vector<Entry> entries_;
   };
   // Folds `inputs` (the stack, top first) from `position` on into `state`. With
   // `decide_by_rest`, each weak fold join of kMinWeakJoinLeaves local maps or more is decided
   // by the rest of the fold (decide_by_rest_of_fold()); without, by the next fold join, as a
-  // real join is (and the smaller ones always).
+  // real join is (and the smaller ones always). With `leave_last_join_associated`, the last
+  // fold join is only associated (FoldState::last_join).
   FoldState fold(FoldState state, const std::vector<FoldInput>& inputs, std::size_t position,
-                 bool decide_by_rest) const;
+                 FoldAssociations& associations, bool decide_by_rest,
+                 bool leave_last_join_associated = false) const;
+  // Runs the fold join at `position` to its end, or with `associate_only` until its pairs are
+  // known; a failure names the stack's map.
+  static void run_fold_join(DecidingJoin& join, const std::vector<FoldInput>& inputs, std::size_t position,
+                            bool associate_only);
+  // Makes the fold join at `position` (run by run_fold_join()) and folds its result into `state`.
+  void take_fold_join(FoldState& state, DecidingJoin& join, const std::vector<FoldInput>& inputs,
+                      std::size_t position) const;
+  // Makes `state.last_join`, left associated by fold().
+  void make_last_fold_join(FoldState& state, const std::vector<FoldInput>& inputs) const;
   // `state` ends with a weak fold join whose decision waits: carries each of its versions
   // through the rest of the fold (each later weak join decided by its next join) and keeps the
   // one that makes the most pairs over the weak join and every fold join after it (a tie keeps
   // the tighter version); the fold then goes on from that version, deciding the later weak
   // joins the same way (docs/data_association.md, "The final fold decides by the rest of the
   // fold").
-  FoldState decide_by_rest_of_fold(FoldState state, const std::vector<FoldInput>& inputs, std::size_t position) const;
+  FoldState decide_by_rest_of_fold(FoldState state, const std::vector<FoldInput>& inputs, std::size_t position,
+                                   FoldAssociations& associations) const;
   // Merges the duplicates the joins left in the estimate's `map` as the EKF merges its own
   // (never seen in one scan, each the other's only compatible feature within merge_radius),
   // the test with join_feature_sigma as at a join. The ids of `seen_with`'s lists follow the

@@ -109,6 +109,11 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
   // the alternative.
   std::int64_t step(std::int64_t budget);
   bool done() const { return phase_ == Phase::Done; }
+  // The chosen join's pairs are known (join().pairs(), its pairing record): what a caller
+  // that compares joins by their pairs needs, before the costlier rest (the fill).
+  bool associated() const { return phase_ != Phase::Choose && chosen_->associated(); }
+  // Steps until associated(); finish() then makes the rest, the same steps as without this.
+  void associate();
   std::int64_t remaining_work() const;
 
   // Valid once done(). The versions joined:

@@ -69,6 +69,14 @@ struct JoinAssociationResult {
   std::vector<std::pair<Eigen::Index, Eigen::Index>> own_pairs;
 };
 
+// JoinOptions::association_memo: the association of two maps, kept by the join that made it
+// for a join of the same maps with the same options (estimate()'s fold, which makes a join
+// again while it compares a weak fold join's versions). The search depends on its inputs
+// alone, so the result taken is bitwise the one the search would find.
+struct JoinAssociationMemo {
+  std::optional<JoinAssociationResult> result;
+};
+
 // Pairs (i in m1, j in m2) of features with the same id ("known" association).
 std::vector<std::pair<Eigen::Index, Eigen::Index>> associate_by_id(const GaussianMap& first,
                                                                    const GaussianMap& second);

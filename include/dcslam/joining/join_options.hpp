@@ -46,6 +46,8 @@ struct JoinLinearisation {
   Eigen::VectorXd second_x;
 };
 
+struct JoinAssociationMemo;  // join_association.hpp
+
 struct JoinOptions {
   JoinAssociation association = JoinAssociation::Known;
   // The association's settings, RJC's handed to it as they are (JoinAssociator adds only m2's
@@ -83,6 +85,9 @@ struct JoinOptions {
   // Set: these pairs (i in m1, j in m2) are imposed and no association runs (a weak join's
   // alternative: the pairs its association chose less the deferred ones, join_alternatives.hpp).
   std::shared_ptr<const std::vector<std::pair<Eigen::Index, Eigen::Index>>> fixed_pairs;
+  // Set: the association of this join's two maps with these options, kept in (or taken from,
+  // once kept) this memo, so that a join made again on the same maps does not search again.
+  std::shared_ptr<JoinAssociationMemo> association_memo;
 };
 
 }  // namespace dcslam
