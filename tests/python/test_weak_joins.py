@@ -170,12 +170,14 @@ def fold_scene():
 
 
 def test_a_weak_fold_join_is_decided_by_the_rest_of_the_fold(fold_scene):
-    """loop_both_ways seed 2: a weak join of estimate()'s fold makes 14 pairs, two of them wrong
-    (clutter seen once). The next fold join alone makes the most pairs in all with it as made;
-    the fold join after that then finds 88 of its 189 true pairs among its candidates and the
-    run ends at recall 0.67 with 1.56 features per landmark. Each of the weak join's versions
-    carried through the rest of the fold shows the version to take."""
-    config = dataclasses.replace(BASE, seed=2)
+    """loop_both_ways scene 2, SlamConfig seed 0: the third join of estimate()'s fold (15 local
+    maps, 250 features) is weak. Over it and the next fold join its versions make 181 pairs as
+    made, 174 without the pairs of features seen once and 176 without any pair, so the next
+    join alone keeps it as made and the run ends at recall 0.70; over the whole rest of the
+    fold they make 289, 283 and 370, and the version without any pair ends the run at 0.94
+    (both measured with a temporary switch, 2026-12-04). With the scene's seed as SlamConfig's
+    (seed 2) the two rules end alike today, so that run no longer tells them apart."""
+    config = BASE
     slam, returned, estimate = run_dc(fold_scene, config)
     scores = evaluation.evaluate_run(slam, estimate, returned, fold_scene).association
     assert scores.pairwise_recall > 0.85
