@@ -735,8 +735,7 @@ std::shared_ptr<JoinAssociationMemo> DCSlam::FoldAssociations::memo(const std::s
 }
 
 DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& inputs, std::size_t position,
-                               FoldAssociations& associations, bool decide_by_rest,
-                               bool leave_last_join_associated) const {
+                               FoldAssociations& associations, bool comparing_versions) const {
   for (; position < inputs.size(); ++position) {
     const FoldInput& input = inputs[position];
     for (const JoinIds& ids : input.settled) record_ids(ids, state.aliases, state.seen_with);
@@ -748,7 +747,7 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
       return std::make_unique<MapJoin>(first.map, second.map, std::move(join_options));
     };
     const bool last = position + 1 == inputs.size();
-    const bool associate_only = last && leave_last_join_associated;
+    const bool associate_only = last && comparing_versions;
     const std::shared_ptr<const JoinAlternative> previous_alternative = state.joined.alternative;
     state.result.reset();  // the join holds its input as long as it needs it
     auto join = std::make_shared<DecidingJoin>(input.map, std::move(state.joined), std::move(make),
@@ -770,11 +769,15 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
     // A weak fold join of fewer local maps is decided by the next join, as a real one would be
     // weak only from kMinWeakJoinLeaves on.
     if (!state.joined.alternative || state.leaves < kMinWeakJoinLeaves) continue;
-    if (decide_by_rest) return decide_by_rest_of_fold(std::move(state), inputs, position + 1, associations);
-    if (!state.first_decided_by_next) {
-      state.first_decided_by_next = std::make_shared<const FoldState>(state);
-      state.first_decided_by_next_position = position + 1;
+    if (!comparing_versions) return decide_by_rest_of_fold(std::move(state), inputs, position + 1, associations);
+    // Taken as made while an earlier weak join's versions are compared; decided by the rest of
+    // the fold once that one is, from the snapshot (decide_by_rest_of_fold()).
+    if (!state.after_first_weak) {
+      state.after_first_weak = std::make_shared<const FoldState>(state);
+      state.after_first_weak_position = position + 1;
     }
+    const std::shared_ptr<const JoinAlternative> alternative = std::move(state.joined.alternative);
+    record_ids(alternative->ids_of(0), state.aliases, state.seen_with);
   }
   return state;
 }
@@ -831,9 +834,7 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
       start.records[weak].pairs = alternative->ids_of(version).record_pairs();
     }
     record_ids(alternative->ids_of(version), start.aliases, start.seen_with);
-    // Only the pairs count here, so the last fold join is made for the version kept only.
-    FoldState rest = fold(std::move(start), inputs, position, associations, /*decide_by_rest=*/false,
-                          /*leave_last_join_associated=*/true);
+    FoldState rest = fold(std::move(start), inputs, position, associations, /*comparing_versions=*/true);
     std::size_t pairs = 0;
     for (std::size_t k = weak; k < rest.records.size(); ++k) pairs += rest.records[k].pairs.size();
     if (version == 0 || pairs > best_pairs) {
@@ -841,14 +842,14 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
       best_pairs = pairs;
     }
   }
-  if (!best.first_decided_by_next) {
+  if (!best.after_first_weak) {
     make_last_fold_join(best, inputs);
     return best;
   }
-  // The fold from the best version deciding by the rest would make best's joins again up to
-  // its first weak join, and decide that one by the rest from the same state.
-  FoldState from = *best.first_decided_by_next;
-  const std::size_t next = best.first_decided_by_next_position;
+  // The fold from the best version would make best's joins again up to its first later weak
+  // join, and decide that one by the rest from the same state.
+  FoldState from = *best.after_first_weak;
+  const std::size_t next = best.after_first_weak_position;
   best = FoldState{};
   return decide_by_rest_of_fold(std::move(from), inputs, next, associations);
 }
@@ -920,7 +921,7 @@ Estimate DCSlam::estimate() const {
     inputs.push_back(std::move(input));
   }
   FoldAssociations associations;
-  state = fold(std::move(state), inputs, 0, associations, /*decide_by_rest=*/true);
+  state = fold(std::move(state), inputs, 0, associations);
   inputs.clear();
   IdAliases& aliases = state.aliases;
   std::shared_ptr<GaussianMap> joined = std::move(state.result);

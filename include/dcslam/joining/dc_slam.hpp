@@ -222,19 +222,20 @@ class DCSlam : public SlamFilter {
     SeenWith seen_with;
     std::vector<JoinPairingRecord> records;
     std::int64_t leaves = 1;  // local maps folded, the open one included
-    // Set when a weak fold join that the rest of the fold would decide was decided by the next
-    // join: the state the fold had just after the first such join, and the position after it.
-    // A fold that decides by the rest reaches the same state there, so decide_by_rest_of_fold()
-    // goes on from it instead of making the joins before it again.
-    std::shared_ptr<const FoldState> first_decided_by_next;
-    std::size_t first_decided_by_next_position = 0;
-    // The last fold join, associated but not made, when the fold was asked to leave it so
+    // Set when a fold comparing versions took a later weak fold join (of kMinWeakJoinLeaves
+    // local maps or more) as made: the state just after the first such join, its alternative
+    // kept, and the position after it. decide_by_rest_of_fold() goes on from it to decide that
+    // join, instead of making the joins before it again.
+    std::shared_ptr<const FoldState> after_first_weak;
+    std::size_t after_first_weak_position = 0;
+    // The last fold join, associated but not made, in a fold comparing versions
     // (make_last_fold_join() makes it): versions compared by their pairs need only its pairs.
     std::shared_ptr<DecidingJoin> last_join;
   };
   // The associations of estimate()'s fold joins (JoinAssociationMemo), by their maps and
   // position: comparing a weak fold join's versions makes some joins again on the same maps
-  // (a version decided by its next join, then by the rest of the fold).
+  // (the runs of a later weak join's versions start where the best run of the earlier one
+  // took it as made).
   class FoldAssociations {
    public:
     // The memo of the fold join at `position` of these maps: empty the first time.
@@ -250,14 +251,15 @@ class DCSlam : public SlamFilter {
     };
     std::vector<Entry> entries_;
   };
-  // Folds `inputs` (the stack, top first) from `position` on into `state`. With
-  // `decide_by_rest`, each weak fold join of kMinWeakJoinLeaves local maps or more is decided
-  // by the rest of the fold (decide_by_rest_of_fold()); without, by the next fold join, as a
-  // real join is (and the smaller ones always). With `leave_last_join_associated`, the last
-  // fold join is only associated (FoldState::last_join).
+  // Folds `inputs` (the stack, top first) from `position` on into `state`: each weak fold join
+  // of kMinWeakJoinLeaves local maps or more is decided by the rest of the fold
+  // (decide_by_rest_of_fold()), the smaller ones by the next fold join, as a real join is.
+  // `comparing_versions`: the fold of one version of a weak fold join, compared by its pairs:
+  // the later weak joins of kMinWeakJoinLeaves local maps or more are taken as made (the state
+  // after the first kept in after_first_weak), and the last fold join is only associated
+  // (FoldState::last_join).
   FoldState fold(FoldState state, const std::vector<FoldInput>& inputs, std::size_t position,
-                 FoldAssociations& associations, bool decide_by_rest,
-                 bool leave_last_join_associated = false) const;
+                 FoldAssociations& associations, bool comparing_versions = false) const;
   // Runs the fold join at `position` to its end, or with `associate_only` until its pairs are
   // known; a failure names the stack's map.
   static void run_fold_join(DecidingJoin& join, const std::vector<FoldInput>& inputs, std::size_t position,
@@ -268,7 +270,8 @@ class DCSlam : public SlamFilter {
   // Makes `state.last_join`, left associated by fold().
   void make_last_fold_join(FoldState& state, const std::vector<FoldInput>& inputs) const;
   // `state` ends with a weak fold join whose decision waits: carries each of its versions
-  // through the rest of the fold (each later weak join decided by its next join) and keeps the
+  // through the rest of the fold (each later weak join of kMinWeakJoinLeaves local maps or
+  // more taken as made, the smaller ones decided by their next join) and keeps the
   // one that makes the most pairs over the weak join and every fold join after it (a tie keeps
   // the tighter version); the fold then goes on from that version, deciding the later weak
   // joins the same way (docs/data_association.md, "The final fold decides by the rest of the
