@@ -37,6 +37,15 @@ def run_one(filter_name: str, sim, config: dcslam.SlamConfig):
     return scores, seconds
 
 
+def simulation(name: str, seed: int):
+    """A revisit scenario, or one of the paper's trajectories at 600 steps with 10 % clutter."""
+    if name in dcslam.REVISIT_SCENARIOS:
+        return dcslam.revisit_scenario(name, seed)
+    if name in PAPER_TRAJECTORIES:
+        return dcslam.simulate(name, steps=600, seed=seed, clutter=0.1)
+    raise SystemExit(f"unknown scene {name!r}: one of {', '.join([*dcslam.REVISIT_SCENARIOS, *PAPER_TRAJECTORIES])}")
+
+
 def parse_overrides(items):
     """``["field=value", ...]`` -> SlamConfig overrides (values read as JSON, else as strings)."""
     overrides = {}
@@ -70,8 +79,7 @@ def main() -> None:
     for name in names:
         per_filter = {f: [] for f in args.filters.split(",")}
         for seed in range(args.seeds):
-            sim = (dcslam.revisit_scenario(name, seed) if name in dcslam.REVISIT_SCENARIOS
-                   else dcslam.simulate(name, steps=600, seed=seed, clutter=0.1))
+            sim = simulation(name, seed)
             for filter_name in per_filter:
                 scores, seconds = run_one(filter_name, sim, dataclasses.replace(config, seed=seed))
                 per_filter[filter_name].append((scores, seconds))

@@ -15,15 +15,7 @@ import time
 
 import dcslam
 from dcslam import evaluation
-from revisit_association import PAPER_TRAJECTORIES, parse_overrides
-
-
-def simulation(name: str, seed: int):
-    if name in dcslam.REVISIT_SCENARIOS:
-        return dcslam.revisit_scenario(name, seed)
-    if name in PAPER_TRAJECTORIES:
-        return dcslam.simulate(name, steps=600, seed=seed, clutter=0.1)
-    raise SystemExit(f"unknown scene {name!r}: one of {', '.join([*dcslam.REVISIT_SCENARIOS, *PAPER_TRAJECTORIES])}")
+from revisit_association import parse_overrides, simulation
 
 
 def main() -> None:
