@@ -33,7 +33,7 @@ import numpy as np
 import dcslam
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
-from revisit_association import parse_overrides  # noqa: E402
+from revisit_association import parse_overrides, simulation  # noqa: E402
 
 SIMULATED = ("loop", "lawn_mowing", "snail", "straight")  # 600 steps, 10 % clutter
 JOIN_FIELDS = ("step_created", "step_finished", "work_units", "overlap", "pairings", "tries")
@@ -61,9 +61,7 @@ def runs(seeds: int, quick: bool, overrides: dict):
     yield "vp_no_feature_sigma", dcslam.DCSlam(vp.slam_config(**{**overrides, "join_feature_sigma": 0.0})), vp
     for name in (*dcslam.REVISIT_SCENARIOS, *SIMULATED):
         for seed in range(seeds):
-            sim = (dcslam.revisit_scenario(name, seed) if name in dcslam.REVISIT_SCENARIOS
-                   else dcslam.simulate(name, steps=600, seed=seed, clutter=0.1))
-            yield f"{name}/{seed}", dcslam.DCSlam(dataclasses.replace(config, seed=seed)), sim
+            yield f"{name}/{seed}", dcslam.DCSlam(dataclasses.replace(config, seed=seed)), simulation(name, seed)
 
 
 def differences(first: str, second: str) -> list:
