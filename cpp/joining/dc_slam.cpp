@@ -35,6 +35,11 @@ constexpr int kManyLocalMaps = 16;
 // Where the re-linearised tree stops: no mean moved by more than this (m or rad) in a pass.
 constexpr double kRelinearisationTolerance = 1e-9;
 
+// estimate()'s fold joins are indexed -1, -2, ... by their position in the fold, apart from
+// the real joins' events (JoinAlternative::join_index).
+int fold_join_index(std::size_t position) { return -1 - static_cast<int>(position); }
+std::size_t fold_position(int join_index) { return static_cast<std::size_t>(-1 - join_index); }
+
 // The local maps' EKF counters that DCSlam's stats add up over all local maps.
 constexpr const char* kLocalCounters[] = {"features_merged", "tentative_removed", "jcbb_nodes", "jcbb_bound_hits"};
 
@@ -739,7 +744,7 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
   for (; position < inputs.size(); ++position) {
     const FoldInput& input = inputs[position];
     for (const JoinIds& ids : input.settled) record_ids(ids, state.aliases, state.seen_with);
-    auto make = [options = join_options(-1 - static_cast<int>(position), input.robot_id), &associations, position](
+    auto make = [options = join_options(fold_join_index(position), input.robot_id), &associations, position](
                     const TreeMap& first, const TreeMap& second, std::shared_ptr<const MapJoin::Pairs> fixed_pairs) {
       JoinOptions join_options = options;
       if (!fixed_pairs) join_options.association_memo = associations.memo(first.map, second.map, position);
@@ -758,7 +763,7 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
     // record is corrected only when a real join decides).
     if (join->second_version_taken() > 0) {
       const JoinAlternative& alternative = *previous_alternative;
-      state.records[static_cast<std::size_t>(-1 - alternative.join_index)].pairs =
+      state.records[fold_position(alternative.join_index)].pairs =
           alternative.ids_of(join->second_version_taken()).record_pairs();
     }
     if (associate_only) {
@@ -803,7 +808,7 @@ void DCSlam::take_fold_join(FoldState& state, DecidingJoin& join, const std::vec
       [](const TreeMap& first, const TreeMap& second, const MapJoin& made) {
         return unmatched_tentative(first.tentative, second.tentative, made);
       },
-      -1 - static_cast<int>(position));
+      fold_join_index(position));
   for (const JoinIds& ids : decided.settled) record_ids(ids, state.aliases, state.seen_with);
   state.joined = decided.tree_map();
   state.result = std::move(decided.map);
