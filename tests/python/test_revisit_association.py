@@ -1,0 +1,37 @@
+"""benchmarks/revisit_association.py: several RJC draws a scene for D&C (--rjc-seeds), one run a
+scene for the EKF, which draws nothing; the rows name their SlamConfig seed."""
+
+import json
+import subprocess
+import sys
+
+from script_loader import ROOT, load_script
+
+SCRIPT = ROOT / "benchmarks" / "revisit_association.py"
+
+
+def test_config_seeds_give_dc_one_run_a_draw_and_the_ekf_one_run():
+    module = load_script("benchmarks/revisit_association.py")
+    assert module.config_seeds("dc", 3, 1) == [3]  # the default run: SlamConfig.seed = scene seed
+    assert module.config_seeds("dc", 3, 3) == [3, 1003, 2003]
+    assert module.config_seeds("ekf", 3, 3) == [3]
+
+
+def test_rjc_draws_are_run_scored_and_listed(tmp_path):
+    out = tmp_path / "runs.json"
+    result = subprocess.run([sys.executable, str(SCRIPT), "--scenarios", "small_loop_laps", "--seeds", "1",
+                             "--rjc-seeds", "2", "--json", str(out)], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    runs = json.loads(out.read_text())["runs"]
+    assert [(r["filter"], r["seed"], r["config_seed"]) for r in runs] == [("ekf", 0, 0), ("dc", 0, 0), ("dc", 0, 1000)]
+    dc_recalls = [r["association"]["pairwise_recall"] for r in runs if r["filter"] == "dc"]
+    row = next(line for line in result.stdout.splitlines() if line.split()[:2] == ["small_loop_laps", "dc"])
+    # The D&C row is over both draws: its mean recall and its lowest.
+    assert row.split()[3] == f"{sum(dc_recalls) / 2:.3f}"
+    assert row.split()[-1] == f"{min(dc_recalls):.3f}"
+
+
+def test_a_count_below_one_is_refused():
+    result = subprocess.run([sys.executable, str(SCRIPT), "--rjc-seeds", "0"], capture_output=True, text=True)
+    assert result.returncode != 0
+    assert "--rjc-seeds must be at least 1" in result.stderr
