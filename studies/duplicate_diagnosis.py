@@ -38,19 +38,26 @@ and the true pairs left unmade by reason; the totals are split by join size.
 
 Usage: python studies/duplicate_diagnosis.py SCENARIO [--seed 0] [--filter dc|ekf] [--list] [--joins]
        python studies/duplicate_diagnosis.py SCENARIO --seeds N [--filter dc|ekf]   (tables summed over seeds)
-       (SCENARIO: a dcslam.REVISIT_SCENARIOS name or a trajectory, e.g. lawn_mowing)
+       (SCENARIO: a dcslam.REVISIT_SCENARIOS name or one of the paper's trajectories, e.g. lawn_mowing:
+        600 steps, 10 % clutter, as benchmarks/revisit_association.py runs them)
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import pathlib
+import sys
 
 import numpy as np
 
 import dcslam
 from dcslam import evaluation
 from dcslam.consistency import chi2_threshold
+
+# The revisit benchmark's scenes, so that a diagnosed run is one of its runs.
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
+from revisit_association import simulation  # noqa: E402
 
 
 
@@ -120,8 +127,7 @@ def run(filter_name: str, sim, config, oracle=None):
 
 
 def diagnose(name: str, seed: int, filter_name: str):
-    sim = (dcslam.revisit_scenario(name, seed) if name in dcslam.REVISIT_SCENARIOS
-           else dcslam.simulate(name, steps=600, seed=seed, clutter=0.1))
+    sim = simulation(name, seed)
     config = dcslam.SlamConfig(association="jcbb", join_association="rjc", amortize=False, seed=seed)
     slam, returned, closed_before = run(filter_name, sim, config)
     truth = np.asarray(sim.true_ids)

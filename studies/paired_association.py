@@ -24,7 +24,7 @@ import dcslam
 
 # The revisit benchmark's runner and its overrides, so that both score a run the same way.
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
-from revisit_association import parse_overrides, run_one  # noqa: E402
+from revisit_association import parse_overrides, run_one, simulation  # noqa: E402
 
 DEFAULT_SCENES = "small_loop_laps,loop_both_ways,lawn_overlap"
 
@@ -38,7 +38,7 @@ def main() -> None:
     parser.add_argument("--a", action="append", default=[], metavar="FIELD=VALUE", help="overrides of run A")
     parser.add_argument("--b", action="append", default=[], metavar="FIELD=VALUE", help="overrides of run B")
     parser.add_argument("--seeds", type=int, default=20)
-    parser.add_argument("--scenarios", default=DEFAULT_SCENES, help="comma-separated revisit scenario names")
+    parser.add_argument("--scenarios", default=DEFAULT_SCENES, help="comma-separated scene names: revisit scenarios or the paper's trajectories (600 steps, 10 %% clutter)")
     parser.add_argument("--filter", choices=("dc", "ekf"), default="dc")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
@@ -55,7 +55,7 @@ def main() -> None:
     for name in args.scenarios.split(","):
         pairs = []
         for seed in range(args.seeds):
-            sim = dcslam.revisit_scenario(name, seed)
+            sim = simulation(name, seed)
             a = run_one(args.filter, sim, dataclasses.replace(config_a, seed=seed))[0].association
             b = run_one(args.filter, sim, dataclasses.replace(config_b, seed=seed))[0].association
             pairs.append((a, b))
