@@ -97,6 +97,12 @@ class AssociationScores:
         landmarks_scored: landmarks measured >= ``min_measurements`` times.
         features: distinct features holding at least one measurement.
         measurements, clutter, rejected: counts (rejected = id -1).
+        recall_lost_to_rejected: pairs of measurements of one landmark lost because one of
+            the two was rejected (or its feature dropped), over the landmarks' pairs.
+        recall_lost_to_splits: pairs of measurements of one landmark, both in features, but
+            in two different ones (a landmark mapped twice, or a measurement given to another
+            landmark's feature), over the landmarks' pairs.
+            ``pairwise_recall + recall_lost_to_rejected + recall_lost_to_splits == 1``.
     """
 
     pairwise_precision: float
@@ -109,6 +115,8 @@ class AssociationScores:
     measurements: int
     clutter: int
     rejected: int
+    recall_lost_to_rejected: float
+    recall_lost_to_splits: float
 
 
 @dataclasses.dataclass(frozen=True)
@@ -198,6 +206,8 @@ def association_scores(true_ids, feature_ids, min_measurements: int = 3) -> Asso
     _, landmark_sizes = np.unique(truth[of_landmark], return_counts=True)
     true_pairs = _pairs(landmark_sizes)
     both = in_feature & of_landmark
+    _, kept_sizes = np.unique(truth[both], return_counts=True)
+    kept_pairs = _pairs(kept_sizes)  # pairs of one landmark's measurements, both in a feature
     cells, cell_sizes = np.unique(np.stack([features[both], truth[both]]), axis=1, return_counts=True)
     true_positive = _pairs(cell_sizes)
 
@@ -226,6 +236,8 @@ def association_scores(true_ids, feature_ids, min_measurements: int = 3) -> Asso
         measurements=int(truth.size),
         clutter=int(np.sum(~of_landmark)),
         rejected=int(np.sum(~in_feature)),
+        recall_lost_to_rejected=(true_pairs - kept_pairs) / true_pairs if true_pairs else 0.0,
+        recall_lost_to_splits=(kept_pairs - true_positive) / true_pairs if true_pairs else 0.0,
     )
 
 

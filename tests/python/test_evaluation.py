@@ -25,9 +25,18 @@ def brute_force(truth, features, min_measurements=3):
         if len(mine) >= min_measurements:
             per_landmark.append(sum(1 for f in set(mine) if f >= 0 and mine.count(f) >= 2))
     wrong = sum(1 for f in set(features) if f >= 0 and len({t for t, g in zip(truth, features) if g == f and t >= 0}) >= 2)
+    rejected_pairs = split_pairs = 0
+    for i, j in itertools.combinations(range(len(truth)), 2):
+        if truth[i] >= 0 and truth[i] == truth[j]:
+            if features[i] < 0 or features[j] < 0:
+                rejected_pairs += 1
+            elif features[i] != features[j]:
+                split_pairs += 1
     return dict(
         precision=both / same_feature if same_feature else 1.0,
         recall=both / same_landmark if same_landmark else 1.0,
+        lost_to_rejected=rejected_pairs / same_landmark if same_landmark else 0.0,
+        lost_to_splits=split_pairs / same_landmark if same_landmark else 0.0,
         features_per_landmark=np.mean(per_landmark) if per_landmark else math.nan,
         wrong_merges=wrong,
     )
@@ -48,6 +57,8 @@ def test_scores_equal_brute_force_on_random_clusterings(seed):
     else:
         assert scores.features_per_landmark == pytest.approx(expected["features_per_landmark"])
     assert scores.wrong_merges == expected["wrong_merges"]
+    assert scores.recall_lost_to_rejected == pytest.approx(expected["lost_to_rejected"])
+    assert scores.recall_lost_to_splits == pytest.approx(expected["lost_to_splits"])
     assert scores.rejected == int(np.sum(features < 0)) and scores.clutter == int(np.sum(truth < 0))
 
 
@@ -80,9 +91,23 @@ def test_a_split_landmark_is_seen_where_the_majority_score_is_blind(known_run):
     broken = evaluation.association_scores(truth, features)
     assert broken.pairwise_precision == 1.0
     assert broken.pairwise_recall < 0.6
+    # Every lost pair is a split one: nothing was rejected.
+    assert broken.recall_lost_to_rejected == 0.0
+    assert broken.recall_lost_to_splits == pytest.approx(1.0 - broken.pairwise_recall)
     assert broken.features_per_landmark > 1.9
     majority = evaluation.majority_scores(truth, features)
     assert majority.precision == 1.0  # the older score cannot see it
+
+
+def test_rejected_measurements_are_told_apart_from_splits(known_run):
+    sim, _, _, returned = known_run
+    truth = np.asarray(sim.true_ids)
+    features = np.concatenate(returned).copy()
+    features[::3] = -1  # a third of the measurements rejected, the rest in their own features
+    scores = evaluation.association_scores(truth, features)
+    assert scores.recall_lost_to_splits == 0.0
+    assert scores.recall_lost_to_rejected > 0.3
+    assert scores.pairwise_recall + scores.recall_lost_to_rejected == pytest.approx(1.0)
 
 
 def test_a_wrong_merge_is_counted(known_run):
