@@ -4,10 +4,14 @@ given SlamConfig overrides (B), and reports per scene the means of both, the pai
 difference B - A of recall and precision with its standard error, and how many seeds went up
 or down. A single change moves a 10-seed mean by up to +-0.03 through seed chaos alone
 (docs/data_association.md), which a paired difference over 20 or more seeds sees through.
+With ``--rjc-seeds K`` each scene is run with K draws of RJC's tries (``SlamConfig.seed`` =
+seed + 1000 k, as ``benchmarks/revisit_association.py --rjc-seeds`` runs them) on both sides,
+each draw a pair: on long_revisits one run depends on its draw ("D&C's map depends on RJC's
+draws"), and more draws show whether a change moved the lottery or the scene.
 
 Usage: python studies/paired_association.py --b merge_confidence=0.9999 [--a FIELD=VALUE ...]
-       [--seeds 20] [--scenarios small_loop_laps,loop_both_ways,lawn_overlap] [--filter dc]
-       [--json FILE]
+       [--seeds 20] [--rjc-seeds 1] [--scenarios small_loop_laps,loop_both_ways,lawn_overlap]
+       [--filter dc] [--json FILE]
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ import dcslam
 
 # The revisit benchmark's runner and its overrides, so that both score a run the same way.
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
-from revisit_association import parse_overrides, run_one, simulation  # noqa: E402
+from revisit_association import config_seeds, parse_overrides, run_one, simulation  # noqa: E402
 
 DEFAULT_SCENES = "small_loop_laps,loop_both_ways,lawn_overlap"
 
@@ -38,17 +42,21 @@ def main() -> None:
     parser.add_argument("--a", action="append", default=[], metavar="FIELD=VALUE", help="overrides of run A")
     parser.add_argument("--b", action="append", default=[], metavar="FIELD=VALUE", help="overrides of run B")
     parser.add_argument("--seeds", type=int, default=20)
+    parser.add_argument("--rjc-seeds", type=int, default=1, help="D&C runs per scene and side, each with other RJC draws")
     parser.add_argument("--scenarios", default=DEFAULT_SCENES, help="comma-separated scene names: revisit scenarios or the paper's trajectories (600 steps, 10 %% clutter)")
     parser.add_argument("--filter", choices=("dc", "ekf"), default="dc")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
     if not args.b:
         sys.exit("paired_association.py: give at least one --b FIELD=VALUE (the change to measure)")
+    if args.seeds < 1 or args.rjc_seeds < 1:
+        sys.exit(f"paired_association.py: --seeds and --rjc-seeds must be at least 1, got {args.seeds} and {args.rjc_seeds}")
 
     base = dict(association="jcbb", join_association="rjc")
     config_a = dcslam.SlamConfig(**{**base, **parse_overrides(args.a)})
     config_b = dcslam.SlamConfig(**{**base, **parse_overrides(args.a), **parse_overrides(args.b)})
-    print(f"{args.filter}, seeds 0..{args.seeds - 1}; A: {args.a or 'defaults'}; B: A with {args.b}")
+    draws = f", {args.rjc_seeds} RJC draws a scene (up/down count runs)" if args.rjc_seeds > 1 else ""
+    print(f"{args.filter}, seeds 0..{args.seeds - 1}{draws}; A: {args.a or 'defaults'}; B: A with {args.b}")
     print(f"{'scenario':16s} {'R A':>6s} {'R B':>6s} {'dR':>7s} {'+-':>6s} {'up':>3s} {'down':>4s} "
           f"{'P A':>6s} {'P B':>6s} {'dP':>8s} {'+-':>7s}")
     rows = []
@@ -56,10 +64,12 @@ def main() -> None:
         pairs = []
         for seed in range(args.seeds):
             sim = simulation(name, seed)
-            a = run_one(args.filter, sim, dataclasses.replace(config_a, seed=seed))[0].association
-            b = run_one(args.filter, sim, dataclasses.replace(config_b, seed=seed))[0].association
-            pairs.append((a, b))
-            rows.append(dict(scenario=name, seed=seed, a=dataclasses.asdict(a), b=dataclasses.asdict(b)))
+            for config_seed in config_seeds(args.filter, seed, args.rjc_seeds):
+                a = run_one(args.filter, sim, dataclasses.replace(config_a, seed=config_seed))[0].association
+                b = run_one(args.filter, sim, dataclasses.replace(config_b, seed=config_seed))[0].association
+                pairs.append((a, b))
+                rows.append(dict(scenario=name, seed=seed, config_seed=config_seed, a=dataclasses.asdict(a),
+                                 b=dataclasses.asdict(b)))
         recall = np.array([[a.pairwise_recall, b.pairwise_recall] for a, b in pairs])
         precision = np.array([[a.pairwise_precision, b.pairwise_precision] for a, b in pairs])
         d_recall, d_precision = recall[:, 1] - recall[:, 0], precision[:, 1] - precision[:, 0]

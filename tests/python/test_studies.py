@@ -130,6 +130,16 @@ def test_paired_association_is_zero_for_no_change_and_sees_a_change(tmp_path):
     assert run_study("paired_association.py", check=False).returncode != 0  # no --b: nothing to compare
 
 
+def test_paired_association_pairs_each_rjc_draw(tmp_path):
+    out = tmp_path / "draws.json"
+    run_study("paired_association.py", "--seeds", 1, "--rjc-seeds", 2, "--scenarios", "small_loop_laps",
+              "--b", "merge_radius=0", "--json", out)
+    runs = json.loads(out.read_text())["runs"]
+    assert [(run["seed"], run["config_seed"]) for run in runs] == [(0, 0), (0, 1000)]
+    refused = run_study("paired_association.py", "--rjc-seeds", 0, "--b", "merge_radius=0", check=False)
+    assert refused.returncode != 0 and "--rjc-seeds must be at least 1" in refused.stderr
+
+
 def test_local_map_consistency_on_one_seed():
     printed = run_study("local_map_consistency.py", "--seeds", 1, "--sigmas", "0,0.01").stdout
     assert "loop_both_ways, seeds 0..0:" in printed
