@@ -60,8 +60,6 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks
 from revisit_association import simulation  # noqa: E402
 
 
-
-
 def join_tree(slam, leaf_of_step: np.ndarray):
     """(first leaf, last leaf, join event) of every real join, by replaying the stack."""
     joins = sorted(slam.stats.joins, key=lambda j: j["index"])

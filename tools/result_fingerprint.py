@@ -33,9 +33,8 @@ import numpy as np
 import dcslam
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
-from revisit_association import parse_overrides, simulation  # noqa: E402
+from revisit_association import PAPER_TRAJECTORIES, parse_overrides, simulation  # noqa: E402
 
-SIMULATED = ("loop", "lawn_mowing", "snail", "straight")  # 600 steps, 10 % clutter
 JOIN_FIELDS = ("step_created", "step_finished", "work_units", "overlap", "pairings", "tries")
 
 
@@ -59,7 +58,7 @@ def runs(seeds: int, quick: bool, overrides: dict):
     yield "vp", dcslam.DCSlam(vp.slam_config(**overrides)), vp
     yield "vp_one_shot", dcslam.DCSlam(vp.slam_config(**{**overrides, "amortize": False})), vp
     yield "vp_no_feature_sigma", dcslam.DCSlam(vp.slam_config(**{**overrides, "join_feature_sigma": 0.0})), vp
-    for name in (*dcslam.REVISIT_SCENARIOS, *SIMULATED):
+    for name in (*dcslam.REVISIT_SCENARIOS, *PAPER_TRAJECTORIES):
         for seed in range(seeds):
             yield f"{name}/{seed}", dcslam.DCSlam(dataclasses.replace(config, seed=seed)), simulation(name, seed)
 
