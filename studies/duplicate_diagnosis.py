@@ -38,6 +38,8 @@ and the true pairs left unmade by reason; the totals are split by join size.
 
 Usage: python studies/duplicate_diagnosis.py SCENARIO [--seed 0] [--filter dc|ekf] [--list] [--joins]
        python studies/duplicate_diagnosis.py SCENARIO --seeds N [--filter dc|ekf]   (tables summed over seeds)
+       [--set FIELD=VALUE ...]   (SlamConfig overrides, e.g. local_map_features=20, or seed=S for
+        another RJC draw than the scene's seed)
        (SCENARIO: a dcslam.REVISIT_SCENARIOS name or one of the paper's trajectories, e.g. lawn_mowing:
         600 steps, 10 % clutter, as benchmarks/revisit_association.py runs them)
 """
@@ -57,7 +59,7 @@ from dcslam.consistency import chi2_threshold
 
 # The revisit benchmark's scenes, so that a diagnosed run is one of its runs.
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
-from revisit_association import simulation  # noqa: E402
+from revisit_association import parse_overrides, simulation  # noqa: E402
 
 
 def join_tree(slam, leaf_of_step: np.ndarray):
@@ -124,9 +126,10 @@ def run(filter_name: str, sim, config, oracle=None):
     return slam, returned, closed_before
 
 
-def diagnose(name: str, seed: int, filter_name: str):
+def diagnose(name: str, seed: int, filter_name: str, overrides=None):
     sim = simulation(name, seed)
-    config = dcslam.SlamConfig(association="jcbb", join_association="rjc", amortize=False, seed=seed)
+    config = dcslam.SlamConfig(**{**dict(association="jcbb", join_association="rjc", amortize=False, seed=seed),
+                                  **(overrides or {})})
     slam, returned, closed_before = run(filter_name, sim, config)
     truth = np.asarray(sim.true_ids)
     features, landmarks = evaluation.feature_landmarks(truth, np.concatenate(returned))
@@ -204,11 +207,11 @@ def join_reason(record, landmark: int, label) -> str:
     return "no true pair there (a feature of the landmark was dropped or merged elsewhere)"
 
 
-def summary(name: str, seeds, filter_name: str) -> None:
+def summary(name: str, seeds, filter_name: str, overrides=None) -> None:
     """The join-size and duplicate-reason tables summed over `seeds` (docs/data_association.md)."""
     joins, reports = [], []
     for seed in seeds:
-        _, seed_reports, seed_joins = diagnose(name, seed, filter_name)
+        _, seed_reports, seed_joins = diagnose(name, seed, filter_name, overrides)
         joins += seed_joins
         reports += seed_reports
     print(f"{name}, seeds {seeds[0]}..{seeds[-1]}, {filter_name}: {len(reports)} duplicated landmarks")
@@ -252,13 +255,16 @@ def main() -> None:
     parser.add_argument("--joins", action="store_true", help="score every D&C join's pairs against the truth")
     parser.add_argument("--seeds", type=int, default=None,
                         help="sum the summary tables over seeds 0..N-1 (instead of one seed's details)")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="SlamConfig overrides (e.g. local_map_features=20; seed=S for another RJC draw)")
     args = parser.parse_args()
+    overrides = parse_overrides(args.set)
     if args.seeds is not None:
         if args.seeds < 1:
             parser.error(f"--seeds must be at least 1, got {args.seeds}")
-        summary(args.scenario, list(range(args.seeds)), args.filter)
+        summary(args.scenario, list(range(args.seeds)), args.filter, overrides)
         return
-    scores, reports, joins = diagnose(args.scenario, args.seed, args.filter)
+    scores, reports, joins = diagnose(args.scenario, args.seed, args.filter, overrides)
     if args.joins:
         keys = ("index", "leaves", "first", "second", "overlap", "pairable", "paired", "correct", "wrong",
                 "wrong_partner_there", "missed", "failed_ic", "maps_disagree", "lost_in_search")

@@ -144,3 +144,18 @@ def test_local_map_consistency_on_one_seed():
     printed = run_study("local_map_consistency.py", "--seeds", 1, "--sigmas", "0,0.01").stdout
     assert "loop_both_ways, seeds 0..0:" in printed
     assert "sigma 0.000 m: mean NEES" in printed and "sigma 0.010 m: mean NEES" in printed
+
+
+def test_duplicate_diagnosis_takes_config_overrides():
+    """--set reaches the diagnosed run: local maps of 20 features make more joins than 30."""
+    def joins_listed(*overrides):
+        printed = run_study("duplicate_diagnosis.py", "small_loop_laps", "--joins", *overrides).stdout
+        lines = printed.splitlines()
+        header = next(k for k, line in enumerate(lines) if line.split()[:2] == ["index", "leaves"])
+        rows = [line for line in lines[header + 1:] if line.split() and line.split()[0].isdigit()]
+        assert "small_loop_laps seed 0 dc: P" in printed
+        return len(rows)
+
+    assert joins_listed("--set", "local_map_features=20") > joins_listed()
+    refused = run_study("duplicate_diagnosis.py", "small_loop_laps", "--set", "local_map_features", check=False)
+    assert refused.returncode != 0 and "FIELD=VALUE" in refused.stderr
