@@ -92,11 +92,15 @@ std::int64_t ChunkedJcbb::gate_next() {
   const std::vector<int>& list = candidates_[next_++];
   candidates_left_ -= static_cast<std::int64_t>(list.size());
   overlap_left_ -= list.empty() ? 0 : 1;
-  std::vector<int> gated;
+  std::vector<Pairing> open;
   for (int feature : list) {
-    if (feature_used_[static_cast<std::size_t>(feature)]) continue;
-    if (individual_distance_sq(conditioned_, Pairing{measurement, feature}) <= options_.candidate_gate) {
-      gated.push_back(feature);
+    if (!feature_used_[static_cast<std::size_t>(feature)]) open.push_back(Pairing{measurement, feature});
+  }
+  conditioned_.prepare(open);
+  std::vector<int> gated;
+  for (const Pairing& pairing : open) {
+    if (individual_distance_sq(conditioned_, pairing) <= options_.candidate_gate) {
+      gated.push_back(pairing.feature);
     }
   }
   if (!gated.empty()) {

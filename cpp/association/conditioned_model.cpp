@@ -40,6 +40,27 @@ const ConditionedPairingModel::CrossBlock& ConditionedPairingModel::cached_cross
   return cache_.emplace(key_of(pairing), std::move(cross)).first->second;
 }
 
+void ConditionedPairingModel::prepare(const std::vector<Pairing>& pairings) const {
+  const auto m = static_cast<Eigen::Index>(kept_.size());
+  if (m == 0) return;
+  std::vector<Pairing> missing;
+  for (const Pairing& pairing : pairings) {
+    if (cache_.count(key_of(pairing)) == 0) missing.push_back(pairing);
+  }
+  if (missing.empty()) return;
+  Eigen::MatrixXd cross(2 * m, 2 * static_cast<Eigen::Index>(missing.size()));
+  for (std::size_t p = 0; p < missing.size(); ++p) {
+    for (Eigen::Index c = 0; c < m; ++c) {
+      cross.block<2, 2>(2 * c, 2 * static_cast<Eigen::Index>(p)) =
+          base_.covariance(kept_[static_cast<std::size_t>(c)], missing[p]);
+    }
+  }
+  lower_.topLeftCorner(2 * m, 2 * m).triangularView<Eigen::Lower>().solveInPlace(cross);
+  for (std::size_t p = 0; p < missing.size(); ++p) {
+    cache_.emplace(key_of(missing[p]), CrossBlock(cross.middleCols<2>(2 * static_cast<Eigen::Index>(p))));
+  }
+}
+
 Vec2 ConditionedPairingModel::innovation(const Pairing& pairing) const {
   if (kept_.empty()) return base_.innovation(pairing);
   const auto m = static_cast<Eigen::Index>(kept_.size());

@@ -82,6 +82,36 @@ TEST(ConditionedPairingModel, IsTheSchurComplementOfTheStackedHypothesis) {
   }
 }
 
+// prepare() solves for several pairings at once what each would solve alone: the same values,
+// whether none, some or all of them were cached before, and nothing to do with none kept.
+TEST(ConditionedPairingModel, PreparedPairingsAreConditionedAsOneByOne) {
+  const JoinProblem problem = grid_join(3, 0, 6, 3, 9);
+  const std::vector<Pairing> truth = true_pairings(problem);
+  ASSERT_GE(truth.size(), 14u);
+  std::vector<Pairing> others(truth.begin() + 8, truth.end());
+  others.push_back(Pairing{truth[9].measurement, truth[10].feature});
+  ConditionedPairingModel one_by_one(problem.model);
+  ConditionedPairingModel prepared(problem.model);
+  prepared.prepare(others);  // nothing kept yet: the base model's values
+  for (const Pairing& a : others) EXPECT_EQ(prepared.innovation(a), problem.model.innovation(a));
+  for (std::size_t k = 0; k < 8; ++k) {
+    ASSERT_TRUE(one_by_one.keep_if_within(truth[k], std::numeric_limits<double>::infinity()));
+    ASSERT_TRUE(prepared.keep_if_within(truth[k], std::numeric_limits<double>::infinity()));
+  }
+  (void)prepared.innovation(others[1]);  // one of them cached alone first
+  prepared.prepare(others);
+  prepared.prepare(others);  // all cached: nothing to do
+  for (const Pairing& a : others) {
+    const Vec2 expected_nu = one_by_one.innovation(a);
+    EXPECT_LE((prepared.innovation(a) - expected_nu).norm(), 1e-12 * (1.0 + expected_nu.norm()));
+    for (const Pairing& b : others) {
+      const Mat2 expected = one_by_one.covariance(a, b);
+      EXPECT_LE((prepared.covariance(a, b) - expected).norm(), 1e-12 * (1.0 + expected.norm()));
+    }
+    EXPECT_NEAR(individual_distance_sq(prepared, a), individual_distance_sq(one_by_one, a), 1e-10);
+  }
+}
+
 ChunkedJcbbResult run_chunked(const JoinProblem& problem, const ChunkedJcbbOptions& options) {
   const int features = static_cast<int>(problem.model.first_size);
   ChunkedJcbb chunked(problem.candidates, problem.model, features, options);

@@ -36,6 +36,12 @@ class ConditionedPairingModel : public PairingModel {
   // D^2 of `pairing` conditioned on K (infinity if C_aa|K is not positive definite).
   double conditional_distance_sq(const Pairing& pairing);
 
+  // Caches the conditioned cross term of each of `pairings` not cached yet, with one triangular
+  // solve for all of them: a candidate list gated at once reads the factor L once, not once a
+  // candidate (the solve of a few columns is bound by memory at the sizes of large joins).
+  // The values are those cached_cross() would compute one by one.
+  void prepare(const std::vector<Pairing>& pairings) const;
+
   int kept() const { return static_cast<int>(kept_.size()); }
   // D^2 of the kept pairings (chain rule).
   double joint_distance_sq() const;
