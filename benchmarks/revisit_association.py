@@ -61,6 +61,12 @@ def config_seeds(filter_name: str, seed: int, rjc_seeds: int) -> list[int]:
     return [seed + RJC_SEED_STRIDE * k for k in range(draws)]
 
 
+def check_run_counts(seeds: int, rjc_seeds: int) -> None:
+    """Refuses scene or draw counts below one, naming both options."""
+    if seeds < 1 or rjc_seeds < 1:
+        raise SystemExit(f"--seeds and --rjc-seeds must be at least 1, got {seeds} and {rjc_seeds}")
+
+
 def parse_overrides(items):
     """``["field=value", ...]`` -> SlamConfig overrides (values read as JSON, else as strings)."""
     overrides = {}
@@ -85,8 +91,7 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
-    if args.seeds < 1 or args.rjc_seeds < 1:
-        raise SystemExit(f"--seeds and --rjc-seeds must be at least 1, got {args.seeds} and {args.rjc_seeds}")
+    check_run_counts(args.seeds, args.rjc_seeds)
 
     names = args.scenarios.split(",") if args.scenarios else [*dcslam.REVISIT_SCENARIOS, *PAPER_TRAJECTORIES]
     config = dcslam.SlamConfig(**{"association": "jcbb", "join_association": "rjc", **parse_overrides(args.set)})

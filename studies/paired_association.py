@@ -28,7 +28,7 @@ import dcslam
 
 # The revisit benchmark's runner and its overrides, so that both score a run the same way.
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
-from revisit_association import config_seeds, parse_overrides, run_one, simulation  # noqa: E402
+from revisit_association import check_run_counts, config_seeds, parse_overrides, run_one, simulation  # noqa: E402
 
 DEFAULT_SCENES = "small_loop_laps,loop_both_ways,lawn_overlap"
 
@@ -49,8 +49,7 @@ def main() -> None:
     args = parser.parse_args()
     if not args.b:
         sys.exit("paired_association.py: give at least one --b FIELD=VALUE (the change to measure)")
-    if args.seeds < 1 or args.rjc_seeds < 1:
-        sys.exit(f"paired_association.py: --seeds and --rjc-seeds must be at least 1, got {args.seeds} and {args.rjc_seeds}")
+    check_run_counts(args.seeds, args.rjc_seeds)
 
     base = dict(association="jcbb", join_association="rjc")
     config_a = dcslam.SlamConfig(**{**base, **parse_overrides(args.a)})
