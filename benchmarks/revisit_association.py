@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import difflib
 import json
 import time
 
@@ -68,12 +69,18 @@ def check_run_counts(seeds: int, rjc_seeds: int) -> None:
 
 
 def parse_overrides(items):
-    """``["field=value", ...]`` -> SlamConfig overrides (values read as JSON, else as strings)."""
+    """``["field=value", ...]`` -> SlamConfig overrides (values read as JSON, else as strings).
+    A name that is no SlamConfig field is refused with the fields closest to it."""
+    fields = [field.name for field in dataclasses.fields(dcslam.SlamConfig)]
     overrides = {}
     for item in items:
         name, separator, value = item.partition("=")
         if not separator:
             raise SystemExit(f"an override must read FIELD=VALUE, got {item!r}")
+        if name not in fields:
+            close = difflib.get_close_matches(name, fields, n=3)
+            hint = f"; did you mean {', '.join(close)}?" if close else "; see docs/api.md for the fields"
+            raise SystemExit(f"{name!r} in {item!r} is not a SlamConfig field{hint}")
         try:
             overrides[name] = json.loads(value)
         except json.JSONDecodeError:

@@ -17,6 +17,21 @@ def test_config_seeds_give_dc_one_run_a_draw_and_the_ekf_one_run():
     assert module.config_seeds("ekf", 3, 3) == [3]
 
 
+def test_overrides_are_read_and_unknown_fields_refused_by_name():
+    module = load_script("benchmarks/revisit_association.py")
+    assert module.parse_overrides(["local_map_features=20", "join_association=jcbb", "gate_confidence=0.999"]) == dict(
+        local_map_features=20, join_association="jcbb", gate_confidence=0.999)
+    for item, says in (("local_map_feature=20", "did you mean local_map_features"),
+                       ("local_map_features", "FIELD=VALUE"),
+                       ("zzz=1", "'zzz' in 'zzz=1' is not a SlamConfig field")):
+        try:
+            module.parse_overrides([item])
+        except SystemExit as refusal:
+            assert says in str(refusal), str(refusal)
+        else:
+            raise AssertionError(f"{item!r} was accepted")
+
+
 def test_rjc_draws_are_run_scored_and_listed(tmp_path):
     out = tmp_path / "runs.json"
     result = subprocess.run([sys.executable, str(SCRIPT), "--scenarios", "small_loop_laps", "--seeds", "1",
