@@ -21,7 +21,9 @@ import argparse
 import dataclasses
 import difflib
 import json
+import sys
 import time
+from typing import NoReturn
 
 import numpy as np
 
@@ -62,10 +64,16 @@ def config_seeds(filter_name: str, seed: int, rjc_seeds: int) -> list[int]:
     return [seed + RJC_SEED_STRIDE * k for k in range(draws)]
 
 
+def refuse(message: str) -> NoReturn:
+    """Ends a command line on bad arguments as argparse does: the message on stderr, status 2."""
+    print(message, file=sys.stderr)
+    raise SystemExit(2)
+
+
 def check_run_counts(seeds: int, rjc_seeds: int) -> None:
     """Refuses scene or draw counts below one, naming both options."""
     if seeds < 1 or rjc_seeds < 1:
-        raise SystemExit(f"--seeds and --rjc-seeds must be at least 1, got {seeds} and {rjc_seeds}")
+        refuse(f"--seeds and --rjc-seeds must be at least 1, got {seeds} and {rjc_seeds}")
 
 
 def parse_overrides(items):
@@ -76,11 +84,11 @@ def parse_overrides(items):
     for item in items:
         name, separator, value = item.partition("=")
         if not separator:
-            raise SystemExit(f"an override must read FIELD=VALUE, got {item!r}")
+            refuse(f"an override must read FIELD=VALUE, got {item!r}")
         if name not in fields:
             close = difflib.get_close_matches(name, fields, n=3)
             hint = f"; did you mean {', '.join(close)}?" if close else "; see docs/api.md for the fields"
-            raise SystemExit(f"{name!r} in {item!r} is not a SlamConfig field{hint}")
+            refuse(f"{name!r} in {item!r} is not a SlamConfig field{hint}")
         try:
             overrides[name] = json.loads(value)
         except json.JSONDecodeError:

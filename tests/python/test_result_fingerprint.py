@@ -55,4 +55,4 @@ def test_set_fingerprints_another_configuration_and_refuses_an_unknown_field(tmp
     assert "small_loop_laps/0/landmark_ids" in compared.stdout
     unknown = run_tool("--quick", "--set", "no_such_field=1", tmp_path / "x.npz")
     assert unknown.returncode == 2
-    assert "no field no_such_field" in unknown.stderr
+    assert "'no_such_field' in 'no_such_field=1' is not a SlamConfig field" in unknown.stderr
