@@ -52,8 +52,9 @@ def main() -> None:
     check_run_counts(args.seeds, args.rjc_seeds)
 
     base = dict(association="jcbb", join_association="rjc")
-    config_a = dcslam.SlamConfig(**{**base, **parse_overrides(args.a)})
-    config_b = dcslam.SlamConfig(**{**base, **parse_overrides(args.a), **parse_overrides(args.b)})
+    overrides_a = parse_overrides(args.a)
+    config_a = dcslam.SlamConfig(**{**base, **overrides_a})
+    config_b = dcslam.SlamConfig(**{**base, **overrides_a, **parse_overrides(args.b)})
     draws = f", {args.rjc_seeds} RJC draws a scene (up/down count runs)" if args.rjc_seeds > 1 else ""
     print(f"{args.filter}, seeds 0..{args.seeds - 1}{draws}; A: {args.a or 'defaults'}; B: A with {args.b}")
     print(f"{'scenario':16s} {'R A':>6s} {'R B':>6s} {'dR':>7s} {'+-':>6s} {'up':>3s} {'down':>4s} "

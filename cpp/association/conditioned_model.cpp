@@ -22,12 +22,16 @@ ConditionedPairingModel::ConditionedPairingModel(const PairingModel& base, Eigen
   cross_.resize(2 * expected_pairings, 2);
 }
 
+void ConditionedPairingModel::write_cross(const Pairing& pairing, CrossColumns cross) const {
+  for (std::size_t c = 0; c < kept_.size(); ++c) {
+    cross.middleRows<2>(2 * static_cast<Eigen::Index>(c)) = base_.covariance(kept_[c], pairing);
+  }
+}
+
 void ConditionedPairingModel::solve_cross(const Pairing& pairing, CrossBlock& cross) const {
   const auto m = static_cast<Eigen::Index>(kept_.size());
   if (cross.rows() < 2 * m) cross.conservativeResize(2 * m, 2);
-  for (Eigen::Index c = 0; c < m; ++c) {
-    cross.middleRows<2>(2 * c) = base_.covariance(kept_[static_cast<std::size_t>(c)], pairing);
-  }
+  write_cross(pairing, cross.topRows(2 * m));
   auto cross_kept = cross.topRows(2 * m);
   lower_.topLeftCorner(2 * m, 2 * m).triangularView<Eigen::Lower>().solveInPlace(cross_kept);
 }
@@ -50,10 +54,7 @@ void ConditionedPairingModel::prepare(const std::vector<Pairing>& pairings) cons
   if (missing.empty()) return;
   Eigen::MatrixXd cross(2 * m, 2 * static_cast<Eigen::Index>(missing.size()));
   for (std::size_t p = 0; p < missing.size(); ++p) {
-    for (Eigen::Index c = 0; c < m; ++c) {
-      cross.block<2, 2>(2 * c, 2 * static_cast<Eigen::Index>(p)) =
-          base_.covariance(kept_[static_cast<std::size_t>(c)], missing[p]);
-    }
+    write_cross(missing[p], cross.middleCols<2>(2 * static_cast<Eigen::Index>(p)));
   }
   lower_.topLeftCorner(2 * m, 2 * m).triangularView<Eigen::Lower>().solveInPlace(cross);
   for (std::size_t p = 0; p < missing.size(); ++p) {

@@ -50,6 +50,9 @@ class ConditionedPairingModel : public PairingModel {
 
  private:
   using CrossBlock = Eigen::Matrix<double, Eigen::Dynamic, 2>;
+  using CrossColumns = Eigen::Ref<Eigen::Matrix<double, Eigen::Dynamic, 2>, 0, Eigen::OuterStride<>>;
+  // Writes C_Ka, the covariances of the kept pairings with `pairing`, into the 2|K| x 2 `cross`.
+  void write_cross(const Pairing& pairing, CrossColumns cross) const;
   // nu_a|K and C_aa|K of `pairing`, leaving its w_a in cross_ for keep().
   void condition(const Pairing& pairing, Vec2& innovation, Mat2& covariance);
   // Adds the pairing last passed to condition() to K, given the factor of its conditional
