@@ -53,7 +53,7 @@ Options of sim and scaling (defaults in brackets):
   --clutter F          fraction of spurious measurements            [0]
   --odometry-noise-scale F  odometry sigmas times F                [1]
   --gate C             gate_confidence of the compatibility tests   [0.99]
-  --unexplained-density D   SlamConfig.unexplained_density (jcbb)  [0]
+  --unexplained-density D   SlamConfig.unexplained_density (jcbb)  [0.02]
 
 Options of sim, scaling, vp and isam:
   --filter ekf|dc|both                                              [both]

@@ -64,9 +64,10 @@ class SlamConfig:
         association: data association inside local maps: ``"known"``, ``"nn"`` or ``"jcbb"``.
         gate_confidence: chi-square confidence of the individual/joint compatibility tests.
         unexplained_density: ``"jcbb"``: expected measurements per scan and per m^2 that no
-            mapped feature explains (clutter and first sightings). 0 (default): JCBB keeps the
-            hypothesis with most pairings; > 0: the most likely one against leaving
-            measurements unexplained at that density (docs/data_association.md).
+            mapped feature explains (clutter and first sightings). 0: JCBB keeps the
+            hypothesis with most pairings; > 0 (default 0.02): the most likely one against
+            leaving measurements unexplained at that density (docs/data_association.md,
+            "Likelihood criterion").
         jcbb_max_nodes: ``"jcbb"``: interpretation-tree nodes per scan (>= 1) before JCBB
             returns the best hypothesis found so far (counted in ``stats.counters``
             ``"jcbb_bound_hits"``).
@@ -157,7 +158,7 @@ class SlamConfig:
     sensor_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
     association: Association = "jcbb"
     gate_confidence: float = 0.99
-    unexplained_density: float = 0.0
+    unexplained_density: float = 0.02
     jcbb_max_nodes: int = 20000
     min_sightings: int = 2
     tentative_window: int = 5

@@ -119,6 +119,9 @@ SlamConfig jcbb_config(ObservationModel observation) {
   config.observation = observation;
   config.sensor_offset = kOffset;
   config.association = Association::Jcbb;
+  // The pairing-count criterion, which brute_force_jcbb enumerates (the likelihood criterion
+  // of the default density has its own exhaustive test below).
+  config.unexplained_density = 0.0;
   return config;
 }
 
