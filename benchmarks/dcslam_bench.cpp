@@ -72,6 +72,7 @@ Options of vp:
   --data-dir DIR       folder of the four vp_*.csv.gz files
                        [)" DCSLAM_SOURCE_DIR R"(/python/dcslam/data/victoria_park]
                        noise and max range: VictoriaParkOptions' defaults (printed)
+  --unexplained-density D   SlamConfig.unexplained_density  [0, the park's preset]
 
 Options of association:
   --sizes a,b,...      features of both maps together              [1000,2000,5000,10000]
@@ -356,6 +357,7 @@ SlamConfig simulation_config(const Args& args) {
 // The preset Python's VictoriaPark.slam_config() gives too.
 SlamConfig victoria_park_config(const Args& args, const VictoriaParkData& data) {
   SlamConfig config = victoria_park_slam_config(data.laser_offset);
+  config.unexplained_density = real_number(args, "unexplained-density", config.unexplained_density);
   apply_run_options(args, config);
   return config;
 }
@@ -618,11 +620,12 @@ int command_vp(const Args& args) {
               options.odometry.floor_sigma_xy, options.odometry.floor_sigma_phi);
   std::printf("  config: range_bearing, sensor offset (%g, %g, %g), association %s, join %s, gate %g, "
               "local maps of %d features, min_sightings %d, tentative_window %d, join_iterations %d, "
-              "join_feature_sigma %g m, weak_join_pairings %d\n",
+              "join_feature_sigma %g m, weak_join_pairings %d, unexplained_density %g\n",
               config.sensor_offset.x(), config.sensor_offset.y(), config.sensor_offset.z(),
               to_string(config.association), to_string(config.join_association), config.gate_confidence,
               config.local_map_features, config.min_sightings, config.tentative_window,
-              config.join_iterations, config.join_feature_sigma, config.weak_join_pairings);
+              config.join_iterations, config.join_feature_sigma, config.weak_join_pairings,
+              config.unexplained_density);
   return report("vp", args, static_cast<int>(steps.size()), run_filters(args, config, steps, nullptr));
 }
 
