@@ -728,6 +728,40 @@ int command_ekf_association(const Args& args) {
 
 }  // namespace
 
+// Options each command reads (the usage above): any other is refused before the run, rather
+// than silently ignored (e.g. --gate given to vp, whose preset sets it).
+void refuse_unknown_options(const std::string& command, const Args& args) {
+  const std::vector<std::string> run = {"filter", "joins", "local-map-features", "join-iterations",
+                                        "join-feature-sigma", "keep-local-map-poses",
+                                        "tree-relinearisation", "weak-join-pairings",
+                                        "chunked-jcbb-min-overlap", "seed", "json"};
+  const std::vector<std::string> simulated = {"trajectory", "association", "clutter", "odometry-noise-scale",
+                                              "gate", "unexplained-density"};
+  std::vector<std::string> known;
+  const auto add = [&known](const std::vector<std::string>& names) { known.insert(known.end(), names.begin(), names.end()); };
+  if (command == "sim" || command == "scaling") {
+    add(run);
+    add(simulated);
+    known.push_back(command == "sim" ? "steps" : "sizes");
+  } else if (command == "vp") {
+    add(run);
+    add({"data-dir", "unexplained-density"});
+  } else if (command == "isam") {
+    add(run);
+  } else if (command == "association") {
+    add({"sizes", "overlap", "repetitions", "seed", "json"});
+  } else if (command == "ekf-association") {
+    add({"sizes", "scans", "seed", "json"});
+  } else {
+    return;  // an unknown command is refused by main()
+  }
+  for (const auto& [key, value] : args) {
+    if (std::find(known.begin(), known.end(), key) == known.end()) {
+      throw InvalidArgument("dcslam_bench " + command + ": unknown option '--" + key + "' (see --help)");
+    }
+  }
+}
+
 int main(int argc, char** argv) {
   try {
     const std::string command = argc > 1 ? argv[1] : "--help";
@@ -740,9 +774,12 @@ int main(int argc, char** argv) {
         std::cerr << "dcslam_bench: isam needs a FILE\n" << kUsage;
         return 2;
       }
-      return command_isam(argv[2], parse_args(argc, argv, 3));
+      const Args args = parse_args(argc, argv, 3);
+      refuse_unknown_options(command, args);
+      return command_isam(argv[2], args);
     }
     const Args args = parse_args(argc, argv, 2);
+    refuse_unknown_options(command, args);
     if (command == "sim") return command_sim(args);
     if (command == "scaling") return command_scaling(args);
     if (command == "vp") return command_vp(args);

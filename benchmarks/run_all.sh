@@ -34,7 +34,7 @@ for a in nn jcbb; do
   run "assoc_${a}_loop_noise3" sim --trajectory loop --steps 600 --association "$a" --clutter 0.1 \
     --odometry-noise-scale 3 --filter both
 done
-# The likelihood criterion in JCBB (opt-in) with a wider gate.
+# The likelihood criterion in JCBB (its default density) with a wider gate.
 for t in loop lawn_mowing; do
   run "assoc_likelihood_$t" sim --trajectory "$t" --steps 600 --association jcbb --clutter 0.1 \
     --gate 0.999 --unexplained-density 0.02 --filter both
