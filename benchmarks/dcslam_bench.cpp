@@ -726,8 +726,6 @@ int command_ekf_association(const Args& args) {
   return 0;
 }
 
-}  // namespace
-
 // Options each command reads (the usage above): any other is refused before the run, rather
 // than silently ignored (e.g. --gate given to vp, whose preset sets it).
 void refuse_unknown_options(const std::string& command, const Args& args) {
@@ -761,6 +759,8 @@ void refuse_unknown_options(const std::string& command, const Args& args) {
     }
   }
 }
+
+}  // namespace
 
 int main(int argc, char** argv) {
   try {

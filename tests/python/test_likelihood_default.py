@@ -21,14 +21,8 @@ BASE = dcslam.SlamConfig(association="jcbb", join_association="rjc")
 def ekf_recall(seed: int, config: dcslam.SlamConfig) -> float:
     sim = dcslam.revisit_scenario("small_loop_laps", seed)
     slam = dcslam.EkfSlam(dataclasses.replace(config, seed=seed))
-    returned = [slam.update(step.z, step.R) for step in _predicted(slam, sim.steps)]
+    returned = slam.run(sim.steps)
     return evaluation.evaluate_run(slam, slam.estimate(), returned, sim).association.pairwise_recall
-
-
-def _predicted(slam, steps):
-    for step in steps:
-        slam.predict(step.u, step.Q)
-        yield step
 
 
 def test_the_defaults():

@@ -29,8 +29,9 @@ struct SlamConfig {
   // explains, clutter and first sightings together. 0 = JCBB returns the hypothesis with most
   // pairings; > 0 = the one with the highest likelihood ratio against leaving measurements
   // unexplained (JcbbLikelihood), which declines pairings less likely than that density.
-  // 0.02: a lone pairing whose gate is wide (a loop closed on one measurement) loses to
-  // "unexplained"; measured on the revisit scenes (docs/data_association.md).
+  // 0.02: a pairing whose gate is wide (an uncertain robot back at a place) loses to
+  // "unexplained" unless its innovation is small; measured on the revisit scenes
+  // (docs/data_association.md, "The default density").
   double unexplained_density = 0.02;
   // "jcbb": interpretation-tree nodes per scan before JCBB returns its best hypothesis so far.
   std::int64_t jcbb_max_nodes = 20000;
