@@ -77,8 +77,9 @@ def check_run_counts(seeds: int, rjc_seeds: int) -> None:
 
 
 def parse_overrides(items):
-    """``["field=value", ...]`` -> SlamConfig overrides (values read as JSON, else as strings).
-    A name that is no SlamConfig field is refused with the fields closest to it."""
+    """``["field=value", ...]`` -> SlamConfig overrides (values read as JSON, else as numbers
+    such as ``inf``, else as strings). A name that is no SlamConfig field is refused with the
+    fields closest to it."""
     fields = [field.name for field in dataclasses.fields(dcslam.SlamConfig)]
     overrides = {}
     for item in items:
@@ -92,7 +93,10 @@ def parse_overrides(items):
         try:
             overrides[name] = json.loads(value)
         except json.JSONDecodeError:
-            overrides[name] = value  # an option string, e.g. join_association=jcbb
+            try:
+                overrides[name] = float(value)  # inf, which JSON spells Infinity
+            except ValueError:
+                overrides[name] = value  # an option string, e.g. join_association=jcbb
     return overrides
 
 

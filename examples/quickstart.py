@@ -11,5 +11,5 @@ for s in sim.steps:
     slam.predict(s.u, s.Q)
     slam.update(s.z, s.R)        # with association="known": slam.update(s.z, s.R, s.landmark_ids)
 est = slam.estimate()            # robot (3,), landmarks (n, 2), landmark_ids, covariance
-print(np.linalg.norm(est.robot[:2] - sim.poses[-1][:2]))  # 0.03 m: the loop is closed
+print(np.linalg.norm(est.robot[:2] - sim.poses[-1][:2]))  # 0.02 m: the loop is closed
 print(est.landmarks.shape, est.covariance.shape, slam.stats.joins[-1])

@@ -295,13 +295,14 @@ void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
   }
 
   std::vector<int> feature_of;
+  const bool likelihood = config_.association == Association::Jcbb && config_.unexplained_density > 0.0;
+  double chosen_score = 0.0;
   if (config_.association == Association::Jcbb) {
-    JcbbResult result;
-    if (config_.unexplained_density > 0.0) fill_likelihood(z, R);
-    result = jcbb_.solve_ranked(candidates_, model_,
-                                config_.unexplained_density > 0.0 ? &likelihood_ : nullptr);
+    if (likelihood) fill_likelihood(z, R);
+    JcbbResult result = jcbb_.solve_ranked(candidates_, model_, likelihood ? &likelihood_ : nullptr);
     counters["jcbb_nodes"] += static_cast<double>(result.nodes_expanded);
     counters["jcbb_bound_hits"] += result.bound_hit ? 1.0 : 0.0;
+    chosen_score = result.score;
     feature_of = std::move(result.feature_of);
   } else {
     feature_of = nearest_neighbour(candidates_, model_, config_.gate_confidence);
@@ -311,10 +312,24 @@ void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
       pairing[i] = feature_of[i];
     } else if (!candidates_[i].empty()) {
       // Compatible with a feature that the hypothesis gave to another measurement (or left
-      // out): a new feature here would likely duplicate that landmark.
-      pairing[i] = kRejected;
+      // out): a new feature here would duplicate that landmark if the decision was a close
+      // one, so it is started only when the decision was clear.
+      const bool clear = likelihood && clearly_unexplained(static_cast<int>(i), chosen_score, counters);
+      pairing[i] = clear ? kNewFeature : kRejected;
     }
   }
+}
+
+bool EkfAssociation::clearly_unexplained(int measurement, double chosen_score,
+                                         std::map<std::string, double>& counters) {
+  if (!std::isfinite(config_.new_feature_margin)) return false;
+  const JcbbResult rival = jcbb_.best_pairing(candidates_, model_, likelihood_, measurement,
+                                              chosen_score - config_.new_feature_margin);
+  counters["jcbb_nodes"] += static_cast<double>(rival.nodes_expanded);
+  // A search stopped at the node bound has not shown that no rival is close.
+  const bool clear = rival.pairings == 0 && !rival.bound_hit;
+  if (clear) counters["unexplained_started"] += 1.0;
+  return clear;
 }
 
 }  // namespace dcslam

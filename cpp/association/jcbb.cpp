@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <string>
 #include <tuple>
 
 #include <Eigen/Cholesky>
@@ -81,9 +82,22 @@ JcbbResult Jcbb::solve_ranked(const CandidateLists& ranked_candidates, const Pai
   return run(ranked_candidates, model, likelihood, true);
 }
 
+JcbbResult Jcbb::best_pairing(const CandidateLists& ranked_candidates, const PairingModel& model,
+                              const JcbbLikelihood& likelihood, int measurement,
+                              double score_floor) {
+  check_likelihood(ranked_candidates, likelihood);
+  if (measurement < 0 || static_cast<std::size_t>(measurement) >= ranked_candidates.size()) {
+    throw InvalidArgument("Jcbb::best_pairing: measurement " + std::to_string(measurement) +
+                          " is not one of the " + std::to_string(ranked_candidates.size()) +
+                          " measurements");
+  }
+  return run(ranked_candidates, model, &likelihood, true, measurement, score_floor);
+}
+
 JcbbResult Jcbb::run(const CandidateLists& candidates, const PairingModel& model,
-                     const JcbbLikelihood* likelihood, bool ranked) {
-  prepare(candidates, model, likelihood, ranked);
+                     const JcbbLikelihood* likelihood, bool ranked, int paired_measurement,
+                     double score_floor) {
+  prepare(candidates, model, likelihood, ranked, paired_measurement, score_floor);
   expand(std::numeric_limits<std::int64_t>::max());
   return result();
 }
@@ -95,8 +109,10 @@ void Jcbb::start(const CandidateLists& candidates, const PairingModel& model,
 }
 
 void Jcbb::prepare(const CandidateLists& candidates, const PairingModel& model,
-                   const JcbbLikelihood* likelihood, bool ranked) {
+                   const JcbbLikelihood* likelihood, bool ranked, int paired_measurement,
+                   double score_floor) {
   check_candidates(candidates);
+  paired_measurement_ = paired_measurement;
   model_ = &model;
   likelihood_ = likelihood;
   num_measurements_ = static_cast<int>(candidates.size());
@@ -135,7 +151,7 @@ void Jcbb::prepare(const CandidateLists& candidates, const PairingModel& model,
       bound = likelihood ? kLogInvTwoPi - 0.5 * likelihood->log_noise_det[i] -
                                likelihood->log_unexplained_density[i]
                          : 1.0;
-      if (options_.allow_star) bound = std::max(bound, 0.0);
+      if (star_allowed(i)) bound = std::max(bound, 0.0);
     }
     score_bound_from_[i] = score_bound_from_[i + 1] + bound;
   }
@@ -147,13 +163,16 @@ void Jcbb::prepare(const CandidateLists& candidates, const PairingModel& model,
   }
   hypothesis_.resize(static_cast<std::size_t>(m));
   best_.clear();
-  best_score_ = -kInfinity;
-  best_distance_sq_ = 0.0;
+  best_score_ = score_floor;
+  // Above the floor, or at it with any D^2: the floor is not a hypothesis to beat on D^2.
+  best_distance_sq_ = score_floor == -kInfinity ? 0.0 : kInfinity;
   nodes_ = 0;
   bound_hit_ = false;
   frames_.clear();
 
-  const bool feasible = options_.allow_star || pairable == m;
+  const bool feasible =
+      options_.allow_star ? paired_measurement < 0 || !candidates[paired_measurement].empty()
+                          : pairable == m;
   if (feasible) enter(0, 0, 0.0, 0.0);
 }
 
@@ -163,6 +182,7 @@ JcbbResult Jcbb::result() {
   for (const Pairing& pairing : best_) result.feature_of[pairing.measurement] = pairing.feature;
   result.pairings = static_cast<int>(best_.size());
   result.joint_distance_sq = best_.empty() ? 0.0 : best_distance_sq_;
+  result.score = best_.empty() ? 0.0 : best_score_;
   result.nodes_expanded = nodes_;
   result.bound_hit = bound_hit_;
   ordered_ = nullptr;
@@ -196,10 +216,12 @@ void Jcbb::enter(int measurement, int depth, double distance_sq, double score) {
     return;
   }
   ++nodes_;
-  // With the star allowed every node is a complete hypothesis (the rest unpaired), so it is
-  // recorded here; that also gives the bounded search a useful answer.
+  // With the star allowed every node is a complete hypothesis (the rest unpaired), once the
+  // measurement that must be paired is behind it, so it is recorded here; that also gives the
+  // bounded search a useful answer.
   const bool complete = measurement == num_measurements_;
-  if ((complete || options_.allow_star) && can_improve(score, distance_sq)) {
+  if ((complete || (options_.allow_star && measurement > paired_measurement_)) &&
+      can_improve(score, distance_sq)) {
     record(depth, distance_sq, score);
   }
   if (!complete) frames_.push_back(Frame{measurement, depth, distance_sq, score, 0, false});
@@ -237,7 +259,7 @@ bool Jcbb::expand(std::int64_t nodes) {
     }
     if (!frame.star_tried) {
       frame.star_tried = true;
-      if (options_.allow_star && can_improve(bound_after, frame.distance_sq)) {
+      if (star_allowed(frame.measurement) && can_improve(bound_after, frame.distance_sq)) {
         enter(frame.measurement + 1, frame.depth, frame.distance_sq, frame.score);
       }
       continue;

@@ -53,6 +53,8 @@ void SlamConfig::validate() const {
           "gate_confidence: must lie in (0, 1), got " + number_text(gate_confidence));
   require(std::isfinite(unexplained_density) && unexplained_density >= 0.0,
           "unexplained_density: must be finite and >= 0, got " + number_text(unexplained_density));
+  require(new_feature_margin >= 0.0,
+          "new_feature_margin: must be >= 0 (infinity: never), got " + number_text(new_feature_margin));
   require(jcbb_max_nodes >= 1,
           "jcbb_max_nodes: must be >= 1, got " + std::to_string(jcbb_max_nodes));
   require(min_sightings >= 1, "min_sightings: must be >= 1, got " + std::to_string(min_sightings));

@@ -41,7 +41,8 @@ int fold_join_index(std::size_t position) { return -1 - static_cast<int>(positio
 std::size_t fold_position(int join_index) { return static_cast<std::size_t>(-1 - join_index); }
 
 // The local maps' EKF counters that DCSlam's stats add up over all local maps.
-constexpr const char* kLocalCounters[] = {"features_merged", "tentative_removed", "jcbb_nodes", "jcbb_bound_hits"};
+constexpr const char* kLocalCounters[] = {"features_merged", "tentative_removed", "jcbb_nodes", "jcbb_bound_hits",
+                                         "unexplained_started"};
 
 double counter(const std::map<std::string, double>& counters, const char* name) {
   const auto found = counters.find(name);

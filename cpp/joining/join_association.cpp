@@ -222,17 +222,19 @@ std::vector<int> JoinAssociator::oracle_pairing() const {
     const auto found = oracle.landmark_of.find(id);
     return found == oracle.landmark_of.end() ? std::int64_t{-1} : found->second;
   };
-  std::unordered_map<std::int64_t, int> unused_of_landmark;
+  // A landmark held by several features of each map (duplicates made inside local maps) is
+  // paired as many times as both maps allow, its features taken in map order.
+  std::unordered_map<std::int64_t, std::vector<int>> unused_of_landmark;
   for (Index i = frame_.first().num_features() - 1; i >= 0; --i) {
     const std::int64_t l = landmark(frame_.first().ids()[static_cast<std::size_t>(i)]);
-    if (l >= 0) unused_of_landmark[l] = static_cast<int>(i);  // the first of the landmark wins
+    if (l >= 0) unused_of_landmark[l].push_back(static_cast<int>(i));  // the first on top
   }
   std::vector<int> truth(static_cast<std::size_t>(frame_.second().num_features()), kStar);
   for (std::size_t j = 0; j < truth.size(); ++j) {
     const auto found = unused_of_landmark.find(landmark(frame_.second().ids()[j]));
-    if (found != unused_of_landmark.end()) {
-      truth[j] = found->second;
-      unused_of_landmark.erase(found);
+    if (found != unused_of_landmark.end() && !found->second.empty()) {
+      truth[j] = found->second.back();
+      found->second.pop_back();
     }
   }
   return truth;

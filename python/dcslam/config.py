@@ -68,6 +68,12 @@ class SlamConfig:
             hypothesis with most pairings; > 0 (default 0.02): the most likely one against
             leaving measurements unexplained at that density (docs/data_association.md,
             "Likelihood criterion").
+        new_feature_margin: ``"jcbb"`` with ``unexplained_density > 0``: a measurement left
+            unpaired although compatible with mapped features starts a tentative feature
+            when every hypothesis pairing it is less likely than the chosen one by more than
+            this natural-log likelihood ratio (default 5, about 150 to 1); otherwise it is
+            rejected (id -1). ``math.inf``: always rejected (docs/data_association.md,
+            "Unexplained measurements beside mapped features").
         jcbb_max_nodes: ``"jcbb"``: interpretation-tree nodes per scan (>= 1) before JCBB
             returns the best hypothesis found so far (counted in ``stats.counters``
             ``"jcbb_bound_hits"``).
@@ -159,6 +165,7 @@ class SlamConfig:
     association: Association = "jcbb"
     gate_confidence: float = 0.99
     unexplained_density: float = 0.02
+    new_feature_margin: float = 5.0
     jcbb_max_nodes: int = 20000
     min_sightings: int = 2
     tentative_window: int = 5

@@ -324,8 +324,11 @@ class EkfSlam(SlamFilter):
     provably contains every gate-passing feature, so a step's association is O(m) for a
     bounded sensor range (docs/data_association.md). In ``"nn"``/``"jcbb"`` a measurement
     compatible with no feature starts one; one that is compatible with some feature but left
-    unpaired (e.g. two measurements competing for one feature) is rejected (id -1) rather
-    than duplicating a landmark.
+    unpaired (e.g. two measurements competing for one feature) starts one only when every
+    hypothesis pairing it is less likely than the chosen one by more than
+    ``cfg.new_feature_margin`` (``"jcbb"`` with the likelihood criterion;
+    ``stats.counters["unexplained_started"]`` counts them), and is otherwise rejected (id
+    -1) rather than duplicating a landmark.
 
     Spurious measurements: a new feature is tentative until seen ``cfg.min_sightings``
     times; a tentative feature not seen for more than ``cfg.tentative_window`` steps is

@@ -2,6 +2,7 @@
 // brute-force gate over every feature, and exhaustive enumeration of JCBB hypotheses.
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <random>
 #include <set>
@@ -285,12 +286,21 @@ TEST_P(EkfAssociationTest, JcbbEqualsExhaustiveEnumerationOnCrowdedScans) {
   EXPECT_GT(ambiguous_scans, 50);
 }
 
-// Every admissible hypothesis as in brute_force_jcbb, best = highest log-likelihood ratio
-// ln N(nu_H; 0, S_H) - sum_{i in H} log_lambda[i] computed from the whole stacked S_H.
-std::vector<int> brute_force_likelihood(const CandidateLists& candidates, const PairingModel& model,
-                                        double confidence, const std::vector<double>& log_lambda) {
-  std::vector<int> best(candidates.size(), kStar);
+// Every admissible hypothesis as in brute_force_jcbb, scored by its log-likelihood ratio
+// ln N(nu_H; 0, S_H) - sum_{i in H} log_lambda[i] computed from the whole stacked S_H: the best
+// hypothesis, its score, and per measurement the best score of a hypothesis that pairs it
+// (-inf when none does).
+struct LikelihoodEnumeration {
+  std::vector<int> best;
   double best_score = 0.0;  // the empty hypothesis
+  std::vector<double> best_pairing_score;
+};
+
+LikelihoodEnumeration brute_force_likelihood(const CandidateLists& candidates, const PairingModel& model,
+                                             double confidence, const std::vector<double>& log_lambda) {
+  LikelihoodEnumeration out;
+  out.best.assign(candidates.size(), kStar);
+  out.best_pairing_score.assign(candidates.size(), -std::numeric_limits<double>::infinity());
   testing::for_each_admissible_hypothesis(
       candidates, model, confidence, true,
       [&](const std::vector<Pairing>& hypothesis, const std::vector<int>& feature_of, double) {
@@ -301,53 +311,85 @@ std::vector<int> brute_force_likelihood(const CandidateLists& candidates, const 
         const auto pairings = static_cast<double>(hypothesis.size());
         double score = -pairings * std::log(2.0 * M_PI) - 0.5 * ldlt.vectorD().array().log().sum() - 0.5 * distance;
         for (const Pairing& p : stacked.pairings) score -= log_lambda[static_cast<std::size_t>(p.measurement)];
-        if (score > best_score) {
-          best = feature_of;
-          best_score = score;
+        if (score > out.best_score) {
+          out.best = feature_of;
+          out.best_score = score;
+        }
+        for (const Pairing& p : stacked.pairings) {
+          double& best_with = out.best_pairing_score[static_cast<std::size_t>(p.measurement)];
+          best_with = std::max(best_with, score);
         }
       });
-  return best;
+  return out;
 }
 
 // unexplained_density > 0: the filter's JCBB returns the most likely hypothesis against
 // leaving measurements unexplained, the density seen in measurement space (times the range
-// for range-bearing), as exhaustive enumeration finds it.
+// for range-bearing), as exhaustive enumeration finds it. A measurement it leaves unpaired
+// although it has candidates starts a feature exactly when every hypothesis that pairs it is
+// less likely by more than new_feature_margin, and is rejected otherwise (margin infinity:
+// always rejected).
 TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowdedScans) {
   const ObservationModel observation = GetParam();
-  SlamConfig config = jcbb_config(observation);
-  config.unexplained_density = observation == ObservationModel::RangeBearing ? 2.0 : 0.3;
-  const double gate = chi2_quantile(2, config.gate_confidence);
-  std::mt19937_64 rng(15);
-  std::uniform_real_distribution<double> uniform(0.0, 1.0);
-  int declined = 0;  // measurements with candidates that the likelihood leaves unpaired
-  for (int trial = 0; trial < 60; ++trial) {
-    const GaussianMap map = random_map(rng, 7, 1.5, 0.2, 0.05, 0.25);
-    const int m = 5;
-    MeasurementMatrix z(m, 2);
-    std::vector<Mat2> R;
-    std::vector<double> log_lambda;
-    for (int i = 0; i < m; ++i) {
-      const Vec2 zi = crowded_measurement(rng, observation, map);
-      z.row(i) = zi.transpose();
-      R.push_back(noise_for(observation) * (0.5 + uniform(rng)));
-      const double jacobian = observation == ObservationModel::RangeBearing ? std::abs(zi(0)) : 1.0;
-      log_lambda.push_back(std::log(config.unexplained_density * jacobian));
-    }
-    std::map<std::string, double> counters;
-    const std::vector<Index> pairing = filter_pairing(config, map, z, R, counters);
+  for (const double margin : {std::numeric_limits<double>::infinity(), 1.0}) {
+    SlamConfig config = jcbb_config(observation);
+    config.unexplained_density = observation == ObservationModel::RangeBearing ? 2.0 : 0.3;
+    config.new_feature_margin = margin;
+    const double gate = chi2_quantile(2, config.gate_confidence);
+    std::mt19937_64 rng(15);
+    std::uniform_real_distribution<double> uniform(0.0, 1.0);
+    int declined = 0;  // measurements with candidates that the likelihood leaves unpaired
+    int started = 0;   // of those, the ones that start a feature
+    for (int trial = 0; trial < 60; ++trial) {
+      const GaussianMap map = random_map(rng, 7, 1.5, 0.2, 0.05, 0.25);
+      const int m = 5;
+      MeasurementMatrix z(m, 2);
+      std::vector<Mat2> R;
+      std::vector<double> log_lambda;
+      for (int i = 0; i < m; ++i) {
+        const Vec2 zi = crowded_measurement(rng, observation, map);
+        z.row(i) = zi.transpose();
+        R.push_back(noise_for(observation) * (0.5 + uniform(rng)));
+        const double jacobian = observation == ObservationModel::RangeBearing ? std::abs(zi(0)) : 1.0;
+        log_lambda.push_back(std::log(config.unexplained_density * jacobian));
+      }
+      std::map<std::string, double> counters;
+      const std::vector<Index> pairing = filter_pairing(config, map, z, R, counters);
 
-    const CandidateLists candidates = gated_candidates(map, observation, z, R, gate);
-    EkfPairingModel model;
-    prepare_every_feature(model, map, observation, z, R);
-    const std::vector<int> best = brute_force_likelihood(candidates, model, config.gate_confidence, log_lambda);
-    for (int i = 0; i < m; ++i) {
-      const Index expected = expected_pairing(best, candidates, i);
-      EXPECT_EQ(pairing[static_cast<std::size_t>(i)], expected) << "trial " << trial << " measurement " << i;
-      declined += expected == kRejected;
+      const CandidateLists candidates = gated_candidates(map, observation, z, R, gate);
+      EkfPairingModel model;
+      prepare_every_feature(model, map, observation, z, R);
+      const LikelihoodEnumeration oracle =
+          brute_force_likelihood(candidates, model, config.gate_confidence, log_lambda);
+      for (int i = 0; i < m; ++i) {
+        const auto k = static_cast<std::size_t>(i);
+        Index expected = expected_pairing(oracle.best, candidates, i);
+        if (expected == kRejected) {
+          ++declined;
+          // Margins within 1e-9 of the setting are too close to call in floating point.
+          const double rival_margin = oracle.best_score - oracle.best_pairing_score[k];
+          ASSERT_GT(std::abs(rival_margin - margin), 1e-9) << "trial " << trial;
+          if (rival_margin > margin) {
+            expected = kNewFeature;
+            ++started;
+          }
+        }
+        EXPECT_EQ(pairing[k], expected) << "margin " << margin << " trial " << trial << " measurement " << i;
+      }
+      EXPECT_EQ(counters["jcbb_bound_hits"], 0.0);
+      EXPECT_EQ(counters["unexplained_started"], 0.0 + std::count(pairing.begin(), pairing.end(), kNewFeature) -
+                                                      std::count_if(candidates.begin(), candidates.end(),
+                                                                    [](const auto& c) { return c.empty(); }));
     }
-    EXPECT_EQ(counters["jcbb_bound_hits"], 0.0);
+    EXPECT_GT(declined, 10);
+    if (std::isfinite(margin)) {
+      // Both outcomes occur on these scans.
+      EXPECT_GT(started, 3);
+      EXPECT_LT(started, declined - 3);
+    } else {
+      EXPECT_EQ(started, 0);
+    }
   }
-  EXPECT_GT(declined, 10);
 }
 
 INSTANTIATE_TEST_SUITE_P(Models, EkfAssociationTest,

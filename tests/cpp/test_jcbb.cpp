@@ -276,6 +276,73 @@ TEST(Jcbb, LikelihoodCriterionStarFreeVariantMatchesExhaustiveSearch) {
   expect_likelihood_matches_exhaustive(false, 22);
 }
 
+// The problem's candidate lists in order of increasing individual distance, as a caller that
+// gated them hands them to solve_ranked() and best_pairing().
+CandidateLists ranked_candidates(const Problem& problem) {
+  CandidateLists ranked = problem.candidates;
+  for (std::size_t i = 0; i < ranked.size(); ++i) {
+    std::stable_sort(ranked[i].begin(), ranked[i].end(), [&](int a, int b) {
+      const int measurement = static_cast<int>(i);
+      return individual_distance_sq(problem.model, Pairing{measurement, a}) <
+             individual_distance_sq(problem.model, Pairing{measurement, b});
+    });
+  }
+  return ranked;
+}
+
+// best_pairing(i, floor): the most likely admissible hypothesis among those that pair
+// measurement i, as exhaustive enumeration finds it, and nothing when the floor is above it.
+// The result's score is the criterion's value of the hypothesis it returns.
+TEST(Jcbb, BestPairingMatchesExhaustiveSearch) {
+  std::mt19937_64 rng(24);
+  Jcbb solver;
+  int checked = 0, unpaired_by_best = 0;
+  for (int trial = 0; trial < 300; ++trial) {
+    const Problem problem = random_problem(rng, 5);
+    const JcbbLikelihood likelihood = random_likelihood(rng, problem);
+    const CandidateLists ranked = ranked_candidates(problem);
+    const JcbbResult best = solver.solve_ranked(ranked, problem.model, &likelihood);
+    ASSERT_NEAR(best.score,
+                direct_log_likelihood_ratio(stack_hypothesis(best.feature_of, problem.model).pairings,
+                                            problem.model, likelihood),
+                1e-8 * std::max(1.0, std::abs(best.score)));
+    for (int i = 0; i < static_cast<int>(ranked.size()); ++i) {
+      double reference = -std::numeric_limits<double>::infinity();
+      testing::for_each_admissible_hypothesis(
+          problem.candidates, problem.model, 0.99, true,
+          [&](const std::vector<Pairing>& hypothesis, const std::vector<int>& feature_of, double) {
+            if (feature_of[static_cast<std::size_t>(i)] == kStar) return;
+            reference = std::max(reference, direct_log_likelihood_ratio(hypothesis, problem.model, likelihood));
+          });
+      const double unbounded = -std::numeric_limits<double>::infinity();
+      const JcbbResult rival = solver.best_pairing(ranked, problem.model, likelihood, i, unbounded);
+      ASSERT_FALSE(rival.bound_hit);
+      if (!std::isfinite(reference)) {  // no candidate, or none jointly admissible with i paired
+        ASSERT_EQ(rival.pairings, 0) << "trial " << trial << " measurement " << i;
+        continue;
+      }
+      ASSERT_NE(rival.feature_of[static_cast<std::size_t>(i)], kStar) << "trial " << trial;
+      const double tolerance = 1e-8 * std::max(1.0, std::abs(reference));
+      ASSERT_NEAR(rival.score, reference, tolerance) << "trial " << trial << " measurement " << i;
+      ASSERT_NEAR(direct_log_likelihood_ratio(stack_hypothesis(rival.feature_of, problem.model).pairings,
+                                              problem.model, likelihood),
+                  reference, tolerance);
+      ASSERT_LE(rival.score, best.score + tolerance);
+      EXPECT_EQ(solver.best_pairing(ranked, problem.model, likelihood, i, reference + 1e-6).pairings, 0);
+      const JcbbResult below = solver.best_pairing(ranked, problem.model, likelihood, i, reference - 1e-6);
+      EXPECT_EQ(below.feature_of, rival.feature_of);
+      // Cut by the floor, the search visits no more nodes than without it.
+      EXPECT_LE(below.nodes_expanded, rival.nodes_expanded);
+      ++checked;
+      unpaired_by_best += best.feature_of[static_cast<std::size_t>(i)] == kStar;
+    }
+  }
+  EXPECT_GT(checked, 500);
+  EXPECT_GT(unpaired_by_best, 50);  // the case the EKF asks about
+  EXPECT_THROW(solver.best_pairing({{}, {}}, LinearScanModel(), JcbbLikelihood{{0.0, 0.0}, {0.0, 0.0}}, 2, 0.0),
+               InvalidArgument);
+}
+
 TEST(Jcbb, LikelihoodCriterionNeedsOneDensityPerMeasurement) {
   LinearScanModel model;
   JcbbLikelihood likelihood;
@@ -331,14 +398,7 @@ TEST(Jcbb, RankedCandidatesGiveTheSameResult) {
   int compared = 0;
   for (int trial = 0; trial < 200; ++trial) {
     const Problem problem = random_problem(rng, trial % 2 == 0 ? 6 : 3);
-    CandidateLists ranked = problem.candidates;
-    for (std::size_t i = 0; i < ranked.size(); ++i) {
-      std::stable_sort(ranked[i].begin(), ranked[i].end(), [&](int a, int b) {
-        const int measurement = static_cast<int>(i);
-        return individual_distance_sq(problem.model, Pairing{measurement, a}) <
-               individual_distance_sq(problem.model, Pairing{measurement, b});
-      });
-    }
+    const CandidateLists ranked = ranked_candidates(problem);
     const JcbbResult own = jcbb(problem.candidates, problem.model);
     const JcbbResult given = solver.solve_ranked(ranked, problem.model);
     ASSERT_EQ(given.feature_of, own.feature_of) << "trial " << trial;

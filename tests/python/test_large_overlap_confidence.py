@@ -3,12 +3,16 @@
 The scene: the simulator's small_loop_laps, seed 14, 10 % clutter, no ids. With one gate
 (0.99) everywhere, a join of two whole laps turns away true pairs and the lap is mapped twice
 (recall 0.78); RJC at 0.999 on overlaps of 50 features or more pairs them (0.93). The oracle
-is the simulator's true landmark of every measurement (dcslam.evaluation). The checkpoint test
+is the simulator's true landmark of every measurement (dcslam.evaluation). The runs reject the
+measurements their local maps leave unexplained beside mapped features
+(``new_feature_margin=inf``), as when this run was traced: with the default margin the laps'
+local maps differ and the one-gate run no longer collapses here. The checkpoint test
 runs the non-default value through a pickle, which must keep it: resumed with the default, the
 run would end as the default run does.
 """
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -17,7 +21,7 @@ import dcslam
 from dcslam import evaluation
 from dc_runs import pickled, run_dc
 
-BASE = dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=14)
+BASE = dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=14, new_feature_margin=math.inf)
 ONE_GATE = dataclasses.replace(BASE, large_overlap_confidence=BASE.gate_confidence)
 
 

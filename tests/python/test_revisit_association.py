@@ -2,6 +2,7 @@
 scene for the EKF, which draws nothing; the rows name their SlamConfig seed."""
 
 import json
+import math
 import subprocess
 import sys
 
@@ -19,8 +20,9 @@ def test_config_seeds_give_dc_one_run_a_draw_and_the_ekf_one_run():
 
 def test_overrides_are_read_and_unknown_fields_refused_by_name(capsys):
     module = load_script("benchmarks/revisit_association.py")
-    assert module.parse_overrides(["local_map_features=20", "join_association=jcbb", "gate_confidence=0.999"]) == dict(
-        local_map_features=20, join_association="jcbb", gate_confidence=0.999)
+    assert module.parse_overrides(["local_map_features=20", "join_association=jcbb", "gate_confidence=0.999",
+                                   "new_feature_margin=inf"]) == dict(
+        local_map_features=20, join_association="jcbb", gate_confidence=0.999, new_feature_margin=math.inf)
     for item, says in (("local_map_feature=20", "did you mean local_map_features"),
                        ("local_map_features", "FIELD=VALUE"),
                        ("zzz=1", "'zzz' in 'zzz=1' is not a SlamConfig field")):

@@ -84,7 +84,8 @@ class EkfAssociation {
   explicit EkfAssociation(const SlamConfig& config);
 
   // Fills pairing (one entry per measurement: feature index, kNewFeature or kRejected).
-  // Counters "jcbb_nodes" and "jcbb_bound_hits" are added to `counters`.
+  // Counters "jcbb_nodes", "jcbb_bound_hits" and "unexplained_started" are added to
+  // `counters`.
   void associate(const GaussianMap& map, const MeasurementsRef& z, const ScanNoise& R,
                  std::vector<Index>& pairing, std::map<std::string, double>& counters);
 
@@ -124,6 +125,10 @@ class EkfAssociation {
   // JcbbLikelihood of the scan: the unexplained density in measurement space at each z_i and
   // ln det R_i, the floor of every pairing's conditional innovation covariance.
   void fill_likelihood(const MeasurementsRef& z, const ScanNoise& R);
+  // Whether every hypothesis that pairs `measurement` (which the chosen one, of score
+  // `chosen_score`, leaves unpaired) is less likely by more than new_feature_margin.
+  bool clearly_unexplained(int measurement, double chosen_score,
+                           std::map<std::string, double>& counters);
   double slack() const;
 
   SlamConfig config_;

@@ -5,6 +5,7 @@
 // measurements with map features, a map join pairs features of the second map with features
 // of the first.
 #include <cstdint>
+#include <limits>
 #include <utility>
 #include <vector>
 
@@ -53,6 +54,7 @@ struct JcbbResult {
   std::vector<int> feature_of;  // per measurement: its feature, or kStar
   int pairings = 0;
   double joint_distance_sq = 0.0;  // D^2 = nu_H' S_H^-1 nu_H of the returned hypothesis
+  double score = 0.0;  // its criterion: the pairings, or the sum of the likelihood gains
   std::int64_t nodes_expanded = 0;
   bool bound_hit = false;  // max_nodes reached: the result is the best found so far
 };
@@ -108,6 +110,15 @@ class Jcbb {
   // the same result without computing every individual distance a second time.
   JcbbResult solve_ranked(const CandidateLists& ranked_candidates, const PairingModel& model,
                           const JcbbLikelihood* likelihood = nullptr);
+  // The best admissible hypothesis (likelihood criterion, ranked lists) among those that pair
+  // `measurement`, if its score is above `score_floor`; otherwise none (pairings = 0). How
+  // much less likely than the unrestricted best it is tells whether leaving the measurement
+  // unexplained was a clear decision (docs/data_association.md, "Unexplained measurements
+  // beside mapped features"). The floor prunes the search: every subtree that cannot reach
+  // it is cut, so asking "is there one within t of the best?" costs a fraction of a solve.
+  // bound_hit as for solve(): the search stopped before it could say.
+  JcbbResult best_pairing(const CandidateLists& ranked_candidates, const PairingModel& model,
+                          const JcbbLikelihood& likelihood, int measurement, double score_floor);
 
   // The same search in slices, for a caller that must bound the time of each of its steps
   // (ChunkedJcbb inside an amortized join): start() prepares it (candidates ranked here,
@@ -128,10 +139,17 @@ class Jcbb {
  private:
   // Both criteria maximise a score summed over the pairings, then minimise D^2: one per
   // pairing for "most pairings", the gain for the likelihood criterion.
+  // paired_measurement >= 0 takes the star away from that measurement (best_pairing);
+  // score_floor is the score a hypothesis must beat to be recorded.
   JcbbResult run(const CandidateLists& candidates, const PairingModel& model,
-                 const JcbbLikelihood* likelihood, bool ranked);
+                 const JcbbLikelihood* likelihood, bool ranked, int paired_measurement = -1,
+                 double score_floor = -std::numeric_limits<double>::infinity());
   void prepare(const CandidateLists& candidates, const PairingModel& model,
-               const JcbbLikelihood* likelihood, bool ranked);
+               const JcbbLikelihood* likelihood, bool ranked, int paired_measurement = -1,
+               double score_floor = -std::numeric_limits<double>::infinity());
+  bool star_allowed(int measurement) const {
+    return options_.allow_star && measurement != paired_measurement_;
+  }
   // A node of the interpretation tree: the hypothesis of `depth` pairings made for the
   // measurements before `measurement`. Its candidates are tried from `next` on, then the star.
   struct Frame {
@@ -160,6 +178,7 @@ class Jcbb {
   CandidateLists ordered_candidates_;        // the caller's lists, ranked by the solver
   const CandidateLists* ordered_ = nullptr;  // the lists searched: those, or the caller's own
   const JcbbLikelihood* likelihood_ = nullptr;  // null: "most pairings"
+  int paired_measurement_ = -1;                 // the measurement that may not take the star
   // Upper bound on the score that measurements >= i can still add (their count of pairable
   // measurements for "most pairings").
   std::vector<double> score_bound_from_;
