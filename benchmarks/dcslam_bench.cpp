@@ -54,6 +54,7 @@ Options of sim and scaling (defaults in brackets):
   --odometry-noise-scale F  odometry sigmas times F                [1]
   --gate C             gate_confidence of the compatibility tests   [0.99]
   --unexplained-density D   SlamConfig.unexplained_density (jcbb)  [0.02]
+  --new-feature-margin M    SlamConfig.new_feature_margin (jcbb; inf: always reject)  [5]
 
 Options of sim, scaling, vp and isam:
   --filter ekf|dc|both                                              [both]
@@ -348,6 +349,7 @@ SlamConfig simulation_config(const Args& args) {
   config.association = parse_association(get(args, "association", "known"), "--association");
   config.gate_confidence = real_number(args, "gate", config.gate_confidence);
   config.unexplained_density = real_number(args, "unexplained-density", config.unexplained_density);
+  config.new_feature_margin = real_number(args, "new-feature-margin", config.new_feature_margin);
   config.join_association =
       config.association == Association::Known ? JoinAssociation::Known : JoinAssociation::Rjc;
   apply_run_options(args, config);
@@ -573,10 +575,10 @@ int command_sim(const Args& args) {
   const int steps = static_cast<int>(number(args, "steps", 500));
   const SlamConfig config = simulation_config(args);
   std::printf("sim: %s, %d steps, association %s, clutter %s, odometry noise x%s, gate %g, "
-              "unexplained density %g\n",
+              "unexplained density %g, new feature margin %g\n",
               get(args, "trajectory", "snail").c_str(), steps, get(args, "association", "known").c_str(),
               get(args, "clutter", "0").c_str(), get(args, "odometry-noise-scale", "1").c_str(),
-              config.gate_confidence, config.unexplained_density);
+              config.gate_confidence, config.unexplained_density, config.new_feature_margin);
   return report("sim", args, steps, run_simulation(args, steps));
 }
 
@@ -734,7 +736,7 @@ void refuse_unknown_options(const std::string& command, const Args& args) {
                                         "tree-relinearisation", "weak-join-pairings",
                                         "chunked-jcbb-min-overlap", "seed", "json"};
   const std::vector<std::string> simulated = {"trajectory", "association", "clutter", "odometry-noise-scale",
-                                              "gate", "unexplained-density"};
+                                              "gate", "unexplained-density", "new-feature-margin"};
   std::vector<std::string> known;
   const auto add = [&known](const std::vector<std::string>& names) { known.insert(known.end(), names.begin(), names.end()); };
   if (command == "sim" || command == "scaling") {
