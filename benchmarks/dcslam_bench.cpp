@@ -52,7 +52,7 @@ Options of sim and scaling (defaults in brackets):
                        with nn|jcbb, sim also scores the pairings against the true ids
   --clutter F          fraction of spurious measurements            [0]
   --odometry-noise-scale F  odometry sigmas times F                [1]
-  --gate C             gate_confidence of the compatibility tests   [0.99]
+  --gate C             gate_confidence of the compatibility tests   [0.999]
   --unexplained-density D   SlamConfig.unexplained_density (jcbb)  [0.02]
   --new-feature-margin M    SlamConfig.new_feature_margin (jcbb; inf: always reject)  [5]
 

@@ -59,7 +59,8 @@ def test_merge_radius_is_checked():
 
 def test_dc_resolves_merged_ids_to_features_of_the_final_map():
     sim = dcslam.revisit_scenario("small_loop_laps", seed=0)
-    slam, estimate, _, returned = run(sim, dcslam.DCSlam)
+    # At the gate of 0.99 this run merges features (at the default 0.999 it needs none).
+    slam, estimate, _, returned = run(sim, dcslam.DCSlam, gate_confidence=0.99)
     assert slam.stats.counters["features_merged"] > 0
     resolved = set(slam.resolve(np.concatenate(returned)).tolist())
     assert resolved <= set(estimate.landmark_ids.tolist()) | {-1}
@@ -119,9 +120,9 @@ def test_final_merge_confidence_sets_only_the_final_merge():
     # of the same scan (before each round's merges were recorded for the next).
     sim = dcslam.revisit_scenario("small_loop_laps", seed=1)
     # JCBB's pairing count in the local maps (unexplained_density 0, the default until
-    # 2026-12-05), as when this run was traced: with the default density seed 1 too ends with
-    # nothing left for the wider test.
-    base = dict(association="jcbb", join_association="rjc", unexplained_density=0.0)
+    # 2026-12-05) and the gate of then (0.99), as when this run was traced: with the default
+    # density seed 1 too ends with nothing left for the wider test.
+    base = dict(association="jcbb", join_association="rjc", unexplained_density=0.0, gate_confidence=0.99)
 
     def final_map(**options):
         slam = dcslam.DCSlam(dcslam.SlamConfig(**base, **options))
@@ -129,7 +130,7 @@ def test_final_merge_confidence_sets_only_the_final_merge():
         return slam, returned, slam.estimate()
 
     default, default_ids, default_map = final_map()
-    same, same_ids, same_map = final_map(final_merge_confidence=dcslam.SlamConfig().gate_confidence)
+    same, same_ids, same_map = final_map(final_merge_confidence=base["gate_confidence"])
     wider, wider_ids, wider_map = final_map(final_merge_confidence=0.9999)
     # Unset is gate_confidence; the local maps and joins are the same runs in all three.
     np.testing.assert_array_equal(same_map.landmarks, default_map.landmarks)

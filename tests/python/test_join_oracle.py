@@ -173,7 +173,8 @@ def test_audit_changes_nothing_and_records_the_true_pairs(scene):
     slam, returned_again = run(sim, (*oracle, "audit"))
     for first, second in zip(returned, returned_again):
         np.testing.assert_array_equal(first, second)
-    gate = chi2.ppf(0.999, 2)  # the pruning gate at gate_confidence 0.99
+    # The pruning gate: a tenth of the decision gate's tail.
+    gate = chi2.ppf(1.0 - (1.0 - dcslam.SlamConfig().gate_confidence) / 10.0, 2)
     reasons = collections.Counter()
     events = sorted(slam.stats.joins, key=lambda j: j["index"])
     for event, record, plain in zip(events, slam.join_pairings(), slam_as_is.join_pairings()):
