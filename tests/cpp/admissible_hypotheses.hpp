@@ -2,6 +2,7 @@
 // Exhaustive enumeration of data association hypotheses: the independent oracle for JCBB in
 // all its variants (count or likelihood criterion, with or without the star node).
 #include <algorithm>
+#include <cmath>
 #include <cstddef>
 #include <vector>
 
@@ -25,6 +26,28 @@ inline double direct_distance_sq(const std::vector<Pairing>& pairings, const Pai
     }
   }
   return nu.dot(S.ldlt().solve(nu));
+}
+
+// The likelihood criterion's score of pairings computed from scratch: the log-density of
+// its stacked innovation under N(0, S_H) (LDLT of the whole S_H) minus sum ln lambda_i.
+inline double direct_log_likelihood_ratio(const std::vector<Pairing>& pairings, const PairingModel& model,
+                                   const JcbbLikelihood& likelihood) {
+  const auto k = static_cast<Eigen::Index>(pairings.size());
+  if (k == 0) return 0.0;
+  Eigen::VectorXd nu(2 * k);
+  Eigen::MatrixXd S(2 * k, 2 * k);
+  double unexplained = 0.0;
+  for (Eigen::Index a = 0; a < k; ++a) {
+    nu.segment<2>(2 * a) = model.innovation(pairings[a]);
+    unexplained += likelihood.log_unexplained_density[static_cast<std::size_t>(pairings[a].measurement)];
+    for (Eigen::Index b = 0; b < k; ++b) {
+      S.block<2, 2>(2 * a, 2 * b) = model.covariance(pairings[a], pairings[b]);
+    }
+  }
+  const Eigen::LDLT<Eigen::MatrixXd> ldlt(S);
+  const double log_det = ldlt.vectorD().array().log().sum();
+  return -static_cast<double>(k) * std::log(2.0 * M_PI) - 0.5 * log_det - 0.5 * nu.dot(ldlt.solve(nu)) -
+         unexplained;
 }
 
 namespace detail {

@@ -298,6 +298,8 @@ struct LikelihoodEnumeration {
 
 LikelihoodEnumeration brute_force_likelihood(const CandidateLists& candidates, const PairingModel& model,
                                              double confidence, const std::vector<double>& log_lambda) {
+  JcbbLikelihood likelihood;
+  likelihood.log_unexplained_density = log_lambda;
   LikelihoodEnumeration out;
   out.best.assign(candidates.size(), kStar);
   out.best_pairing_score.assign(candidates.size(), -std::numeric_limits<double>::infinity());
@@ -305,17 +307,12 @@ LikelihoodEnumeration brute_force_likelihood(const CandidateLists& candidates, c
       candidates, model, confidence, true,
       [&](const std::vector<Pairing>& hypothesis, const std::vector<int>& feature_of, double) {
         if (hypothesis.empty()) return;
-        const StackedHypothesis stacked = stack_hypothesis(feature_of, model);
-        const Eigen::LDLT<MatrixXd> ldlt(stacked.covariance);
-        const double distance = stacked.innovation.dot(ldlt.solve(stacked.innovation));
-        const auto pairings = static_cast<double>(hypothesis.size());
-        double score = -pairings * std::log(2.0 * M_PI) - 0.5 * ldlt.vectorD().array().log().sum() - 0.5 * distance;
-        for (const Pairing& p : stacked.pairings) score -= log_lambda[static_cast<std::size_t>(p.measurement)];
+        const double score = testing::direct_log_likelihood_ratio(hypothesis, model, likelihood);
         if (score > out.best_score) {
           out.best = feature_of;
           out.best_score = score;
         }
-        for (const Pairing& p : stacked.pairings) {
+        for (const Pairing& p : hypothesis) {
           double& best_with = out.best_pairing_score[static_cast<std::size_t>(p.measurement)];
           best_with = std::max(best_with, score);
         }

@@ -17,6 +17,7 @@ namespace dcslam {
 namespace {
 
 using testing::direct_distance_sq;
+using testing::direct_log_likelihood_ratio;
 
 // A linear-Gaussian scan: state x = [t (2); f_0 (2); ...] with estimate 0 and covariance P,
 // measurement i observes A_i (f_j - t) with noise R_i. The true state is a draw from N(0, P),
@@ -176,28 +177,6 @@ void expect_matches_exhaustive(bool allow_star, std::uint64_t seed) {
 TEST(Jcbb, MatchesExhaustiveSearch) { expect_matches_exhaustive(true, 11); }
 
 TEST(Jcbb, StarFreeVariantMatchesExhaustiveSearch) { expect_matches_exhaustive(false, 12); }
-
-// The likelihood criterion's score of a hypothesis computed from scratch: the log-density of
-// its stacked innovation under N(0, S_H) (LDLT of the whole S_H) minus sum ln lambda_i.
-double direct_log_likelihood_ratio(const std::vector<Pairing>& pairings, const PairingModel& model,
-                                   const JcbbLikelihood& likelihood) {
-  const auto k = static_cast<Eigen::Index>(pairings.size());
-  if (k == 0) return 0.0;
-  Eigen::VectorXd nu(2 * k);
-  Eigen::MatrixXd S(2 * k, 2 * k);
-  double unexplained = 0.0;
-  for (Eigen::Index a = 0; a < k; ++a) {
-    nu.segment<2>(2 * a) = model.innovation(pairings[a]);
-    unexplained += likelihood.log_unexplained_density[static_cast<std::size_t>(pairings[a].measurement)];
-    for (Eigen::Index b = 0; b < k; ++b) {
-      S.block<2, 2>(2 * a, 2 * b) = model.covariance(pairings[a], pairings[b]);
-    }
-  }
-  const Eigen::LDLT<Eigen::MatrixXd> ldlt(S);
-  const double log_det = ldlt.vectorD().array().log().sum();
-  return -static_cast<double>(k) * std::log(2.0 * M_PI) - 0.5 * log_det - 0.5 * nu.dot(ldlt.solve(nu)) -
-         unexplained;
-}
 
 struct LikelihoodBest {
   double score = -std::numeric_limits<double>::infinity();
