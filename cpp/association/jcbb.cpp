@@ -165,7 +165,7 @@ void Jcbb::prepare(const CandidateLists& candidates, const PairingModel& model,
   best_.clear();
   best_score_ = score_floor;
   // Above the floor, or at it with any D^2: the floor is not a hypothesis to beat on D^2.
-  best_distance_sq_ = score_floor == -kInfinity ? 0.0 : kInfinity;
+  best_distance_sq_ = kInfinity;
   nodes_ = 0;
   bound_hit_ = false;
   frames_.clear();
