@@ -60,6 +60,8 @@ void SlamConfig::validate() const {
   require(min_sightings >= 1, "min_sightings: must be >= 1, got " + std::to_string(min_sightings));
   require(std::isfinite(merge_radius) && merge_radius >= 0.0,
           "merge_radius: must be finite and >= 0, got " + number_text(merge_radius));
+  require(final_merge_shared_scans >= 0,
+          "final_merge_shared_scans: must be >= 0, got " + std::to_string(final_merge_shared_scans));
   require(!final_merge_confidence || (*final_merge_confidence > 0.0 && *final_merge_confidence < 1.0),
           "final_merge_confidence: must lie in (0, 1) or be None, got " +
               (final_merge_confidence ? number_text(*final_merge_confidence) : std::string()));

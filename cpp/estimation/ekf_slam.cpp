@@ -63,20 +63,25 @@ EkfSlam::Index EkfSlam::remove_feature(Index k) {
   return moved_from;
 }
 
-bool EkfSlam::seen_together(Index a, Index b) const {
+std::int64_t EkfSlam::shared_scans(Index a, Index b) const {
   const auto listed = [this](Index k, std::int64_t id) {
     const auto& ids = tracks_[static_cast<std::size_t>(k)].seen_with;
-    return std::find(ids.begin(), ids.end(), id) != ids.end();
+    return std::count(ids.begin(), ids.end(), id);
   };
-  return listed(a, map_.ids()[static_cast<std::size_t>(b)]) || listed(b, map_.ids()[static_cast<std::size_t>(a)]);
+  return listed(a, map_.ids()[static_cast<std::size_t>(b)]) + listed(b, map_.ids()[static_cast<std::size_t>(a)]);
 }
 
+// D&C's final merge asks whether a pair shared more than final_merge_shared_scans scans, so
+// counting stops one above it.
 void EkfSlam::record_seen_together(const std::vector<Index>& touched) {
   const double radius_sq = config_.merge_radius * config_.merge_radius;
+  const std::int64_t enough = static_cast<std::int64_t>(config_.final_merge_shared_scans) + 1;
   for (std::size_t p = 0; p < touched.size(); ++p) {
     for (std::size_t q = p + 1; q < touched.size(); ++q) {
       const Index a = touched[p], b = touched[q];
-      if (a == b || (map_.feature(a) - map_.feature(b)).squaredNorm() > radius_sq || seen_together(a, b)) continue;
+      if (a == b || (map_.feature(a) - map_.feature(b)).squaredNorm() > radius_sq || shared_scans(a, b) >= enough) {
+        continue;
+      }
       tracks_[static_cast<std::size_t>(a)].seen_with.push_back(map_.ids()[static_cast<std::size_t>(b)]);
     }
   }
@@ -89,7 +94,7 @@ void EkfSlam::record_seen_together(const std::vector<Index>& touched) {
 // resolve, which is what a joint test would be for).
 EkfSlam::Index EkfSlam::merge_partner(Index k) const {
   return dcslam::merge_partner(map_, k, config_.merge_radius, merge_gate_, 0.0,
-                               [this](Index a, Index b) { return !seen_together(a, b); });
+                               [this](Index a, Index b) { return shared_scans(a, b) == 0; });
 }
 
 void EkfSlam::merge_duplicates(const std::vector<Index>& touched) {

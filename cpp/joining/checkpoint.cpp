@@ -151,7 +151,7 @@ class Reader {
 
 // A field added to SlamConfig must be added here too (and kCheckpointVersion raised): the size
 // check below fails the build until it is.
-static_assert(sizeof(SlamConfig) == 184, "SlamConfig changed: update save_config/load_config");
+static_assert(sizeof(SlamConfig) == 192, "SlamConfig changed: update save_config/load_config");
 
 void save_config(Writer& out, const SlamConfig& c) {
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(c.observation));
@@ -166,6 +166,7 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod(c.merge_radius);
   out.pod<std::uint8_t>(c.final_merge_confidence.has_value());
   out.pod(c.final_merge_confidence.value_or(0.0));
+  out.pod(c.final_merge_shared_scans);
   out.pod(c.weak_join_pairings);
   out.pod(c.local_map_features);
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(c.join_association));
@@ -205,6 +206,7 @@ SlamConfig load_config(Reader& in) {
   const bool has_final_merge_confidence = in.flag();
   const auto final_merge_confidence = in.pod<double>();
   if (has_final_merge_confidence) c.final_merge_confidence = final_merge_confidence;
+  c.final_merge_shared_scans = in.pod<int>();
   c.weak_join_pairings = in.pod<int>();
   c.local_map_features = in.pod<int>();
   c.join_association = enum_value<JoinAssociation>(in, 3);
@@ -750,13 +752,15 @@ struct CheckpointAccess {
     out.count(f.events_.size());
     for (const JoinEvent& event : f.events_) save_event(out, event);
     save_aliases(out, f.merged_into_);
-    std::vector<std::int64_t> seen_keys;
-    for (const auto& entry : f.seen_with_) seen_keys.push_back(entry.first);
-    std::sort(seen_keys.begin(), seen_keys.end());
-    out.count(seen_keys.size());
-    for (const std::int64_t id : seen_keys) {
+    std::vector<std::int64_t> sighted;
+    for (const auto& entry : f.sightings_) sighted.push_back(entry.first);
+    std::sort(sighted.begin(), sighted.end());
+    out.count(sighted.size());
+    for (const std::int64_t id : sighted) {
+      const Sightings& sightings = f.sightings_.at(id);
       out.pod(id);
-      out.ids(f.seen_with_.at(id));
+      out.pod(sightings.scans);
+      out.ids(sightings.seen_with);
     }
     out.count(f.closed_maps_counters_.size());
     for (const auto& [name, value] : f.closed_maps_counters_) {
@@ -795,10 +799,11 @@ struct CheckpointAccess {
     for (JoinEvent& event : f->events_) event = load_event(in);
     Reader::require(f->events_.size() == static_cast<std::size_t>(f->joins_created_), "join events and joins differ");
     f->merged_into_ = load_aliases(in);
-    const std::size_t seen_lists = in.count(16);
-    for (std::size_t k = 0; k < seen_lists; ++k) {
+    const std::size_t sighted = in.count(20);
+    for (std::size_t k = 0; k < sighted; ++k) {
       const auto id = in.pod<std::int64_t>();
-      f->seen_with_[id] = in.ids();
+      const int scans = in.pod<int>();
+      f->sightings_[id] = Sightings{scans, in.ids()};
     }
     const std::size_t counters = in.count(16);
     for (std::size_t k = 0; k < counters; ++k) {

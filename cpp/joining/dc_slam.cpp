@@ -220,12 +220,11 @@ std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::ve
 
 namespace {
 
-// Only the features seen with another one get a list: most never are.
-void record_seen_with(const EkfSlam& local, SeenWith& seen_with) {
+void record_sightings(const EkfSlam& local, SightingsById& sightings) {
   const auto& ids = local.map().ids();
   for (std::size_t k = 0; k < ids.size(); ++k) {
-    const std::vector<std::int64_t>& list = local.seen_with(static_cast<Eigen::Index>(k));
-    if (!list.empty()) seen_with[ids[k]] = list;
+    const auto index = static_cast<Eigen::Index>(k);
+    sightings[ids[k]] = Sightings{local.sightings(index), local.seen_with(index)};
   }
 }
 
@@ -247,7 +246,7 @@ void DCSlam::close_local_map() {
       add_alias(merged_into_, from, follow_aliases(local_->merged_ids(), to));
     }
     for (const char* name : kLocalCounters) closed_maps_counters_[name] += counter(local_->stats().counters, name);
-    record_seen_with(*local_, seen_with_);
+    record_sightings(*local_, sightings_);
   }
   auto node = std::make_shared<Node>();
   node->map = compact_copy(local_->map());
@@ -325,7 +324,7 @@ void DCSlam::take_restore_point() {
     point.pending_events.push_back(events_[static_cast<std::size_t>(task->index)]);
   }
   point.merged_into = merged_into_;
-  point.seen_with = seen_with_;
+  point.sightings = sightings_;
   point.closed_maps_counters = closed_maps_counters_;
   if (config_.tree_relinearisation > 0) {
     point.tree = tree_;
@@ -349,7 +348,7 @@ void DCSlam::roll_back(RestorePoint point) {
   events_.resize(static_cast<std::size_t>(point.first_join));
   for (JoinEvent& event : point.pending_events) events_[static_cast<std::size_t>(event.index)] = std::move(event);
   merged_into_ = std::move(point.merged_into);
-  seen_with_ = std::move(point.seen_with);
+  sightings_ = std::move(point.sightings);
   closed_maps_counters_ = std::move(point.closed_maps_counters);
   if (config_.tree_relinearisation > 0) {
     tree_ = std::move(point.tree);
@@ -570,25 +569,26 @@ TentativeOfJoin DCSlam::tentative_of(const Node& left, const Node& right) {
 
 namespace {
 
-// A merged feature was seen with what either feature was seen with.
-void merge_seen_with(SeenWith& seen_with, std::int64_t from, std::int64_t to) {
+// A merged feature was seen in the scans of both, with what either was seen with.
+void merge_sightings(SightingsById& sightings, std::int64_t from, std::int64_t to) {
   if (from == to) return;
-  const auto source = seen_with.find(from);
-  if (source == seen_with.end()) return;
-  std::vector<std::int64_t>& target = seen_with[to];
-  target.insert(target.end(), source->second.begin(), source->second.end());
-  seen_with.erase(from);
+  const auto source = sightings.find(from);
+  if (source == sightings.end()) return;
+  Sightings& target = sightings[to];
+  target.scans += source->second.scans;
+  target.seen_with.insert(target.seen_with.end(), source->second.seen_with.begin(), source->second.seen_with.end());
+  sightings.erase(from);
 }
 
 // What a join did to ids: each merged one now names the feature it joined; dropped ones, -1.
-void record_ids(const JoinIds& ids, IdAliases& aliases, SeenWith& seen_with) {
+void record_ids(const JoinIds& ids, IdAliases& aliases, SightingsById& sightings) {
   for (const auto& [from, to] : ids.merged) {
     add_alias(aliases, from, to);
-    merge_seen_with(seen_with, from, to);
+    merge_sightings(sightings, from, to);
   }
   for (std::int64_t id : ids.dropped) {
     add_alias(aliases, id, -1);
-    seen_with.erase(id);
+    sightings.erase(id);
   }
 }
 
@@ -612,7 +612,7 @@ void DCSlam::complete(JoinTask& task) {
     }
   }
   event.step_finished = steps_;
-  for (const JoinIds& ids : decided.settled) record_ids(ids, merged_into_, seen_with_);
+  for (const JoinIds& ids : decided.settled) record_ids(ids, merged_into_, sightings_);
   const std::shared_ptr<Node> result = task.result.lock();
   result->tentative = std::move(decided.tentative);
   result->map = std::move(decided.map);
@@ -744,7 +744,7 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
                                FoldAssociations& associations, bool comparing_versions) const {
   for (; position < inputs.size(); ++position) {
     const FoldInput& input = inputs[position];
-    for (const JoinIds& ids : input.settled) record_ids(ids, state.aliases, state.seen_with);
+    for (const JoinIds& ids : input.settled) record_ids(ids, state.aliases, state.sightings);
     auto make = [options = join_options(fold_join_index(position), input.robot_id), &associations, position](
                     const TreeMap& first, const TreeMap& second, std::shared_ptr<const MapJoin::Pairs> fixed_pairs) {
       JoinOptions join_options = options;
@@ -783,7 +783,7 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
       state.after_first_weak_position = position + 1;
     }
     const std::shared_ptr<const JoinAlternative> alternative = std::move(state.joined.alternative);
-    record_ids(alternative->ids_of(0), state.aliases, state.seen_with);
+    record_ids(alternative->ids_of(0), state.aliases, state.sightings);
   }
   return state;
 }
@@ -810,7 +810,7 @@ void DCSlam::take_fold_join(FoldState& state, DecidingJoin& join, const std::vec
         return unmatched_tentative(first.tentative, second.tentative, made);
       },
       fold_join_index(position));
-  for (const JoinIds& ids : decided.settled) record_ids(ids, state.aliases, state.seen_with);
+  for (const JoinIds& ids : decided.settled) record_ids(ids, state.aliases, state.sightings);
   state.joined = decided.tree_map();
   state.result = std::move(decided.map);
   state.leaves += inputs[position].leaves;
@@ -839,7 +839,7 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
       start.joined = TreeMap{taken.map, taken.tentative, nullptr};
       start.records[weak].pairs = alternative->ids_of(version).record_pairs();
     }
-    record_ids(alternative->ids_of(version), start.aliases, start.seen_with);
+    record_ids(alternative->ids_of(version), start.aliases, start.sightings);
     FoldState rest = fold(std::move(start), inputs, position, associations, /*comparing_versions=*/true);
     std::size_t pairs = 0;
     for (std::size_t k = weak; k < rest.records.size(); ++k) pairs += rest.records[k].pairs.size();
@@ -860,7 +860,7 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
   return decide_by_rest_of_fold(std::move(from), inputs, next, associations);
 }
 
-void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& seen_with,
+void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SightingsById& sightings,
                               const IdAliases& merged) const {
   if (!(config_.merge_radius > 0.0) || config_.association == Association::Known) return;
   const auto& ids = map.ids();
@@ -868,26 +868,37 @@ void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& se
   const auto now = [&](std::int64_t id) {
     return follow_aliases(aliases, follow_aliases(merged, follow_aliases(local_->merged_ids(), id)));
   };
-  const auto listed = [&](std::int64_t id, std::int64_t other) {
-    const auto found = seen_with.find(id);
-    return found != seen_with.end() && std::any_of(found->second.begin(), found->second.end(),
-                                                   [&](std::int64_t seen) { return now(seen) == other; });
+  const auto listed = [&](std::int64_t id, std::int64_t other) -> std::int64_t {
+    const auto found = sightings.find(id);
+    if (found == sightings.end()) return 0;
+    const std::vector<std::int64_t>& seen_with = found->second.seen_with;
+    return std::count_if(seen_with.begin(), seen_with.end(), [&](std::int64_t seen) { return now(seen) == other; });
   };
+  const auto scans = [&](std::int64_t id) -> std::int64_t {
+    const auto found = sightings.find(id);
+    return found == sightings.end() ? 0 : found->second.scans;
+  };
+  // Two features paired in one scan are two landmarks, unless one of the scan's pairings was
+  // wrong (a clutter point or a neighbour): a few shared scans are allowed when each feature
+  // was also seen without the other. Two distinct landmarks close enough to pass the test are
+  // seen together whenever both are seen, so the less seen one has no scan of its own.
+  const std::int64_t shared_allowed = config_.final_merge_shared_scans;
   const auto may_be_one = [&](Eigen::Index a, Eigen::Index b) {
     const std::int64_t id_a = ids[static_cast<std::size_t>(a)], id_b = ids[static_cast<std::size_t>(b)];
-    return !listed(id_a, id_b) && !listed(id_b, id_a);
+    const std::int64_t shared = listed(id_a, id_b) + listed(id_b, id_a);
+    return shared == 0 || (shared <= shared_allowed && scans(id_a) > shared && scans(id_b) > shared);
   };
   // Each feature of a local map carries the error a join models (join_feature_sigma), two of
   // one local map as much as two of different ones: the local EKF's own merge, which has no
   // such term, may have declined a pair this test accepts.
   const double gate = chi2_quantile(2, config_.final_merge_confidence.value_or(config_.gate_confidence));
-  // Each merge recorded as it is made: a merged feature's seen-with list goes to the one it is
-  // kept as, which the next round's partners are tested against (two sightings of one scan
-  // would otherwise meet in one feature).
+  // Each merge recorded as it is made: a merged feature's scans and seen-with list go to the one
+  // it is kept as, which the next round's partners are tested against (two sightings of one
+  // scan would otherwise meet in one feature unnoticed).
   merge_duplicate_features(map, config_.merge_radius, gate, config_.join_feature_sigma, may_be_one,
                            [&](std::int64_t from, std::int64_t to) {
                              add_alias(aliases, from, to);
-                             merge_seen_with(seen_with, from, to);
+                             merge_sightings(sightings, from, to);
                            });
 }
 
@@ -897,12 +908,12 @@ void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& se
 Estimate DCSlam::estimate() const {
   const_cast<DCSlam*>(this)->raise_join_failure_if_any();
   std::vector<std::shared_ptr<FrozenNode>> stack;
-  SeenWith seen_with;
+  SightingsById sightings;
   IdAliases merged;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     for (const auto& node : stack_) stack.push_back(freeze(node));
-    seen_with = seen_with_;
+    sightings = sightings_;
     merged = merged_into_;
   }
   FoldState state;
@@ -912,8 +923,8 @@ Estimate DCSlam::estimate() const {
   for (const auto& track : local_->tentative_features()) {
     state.joined.tentative.push_back(TentativeFeature{track.id, closed_local_maps_, false, false});
   }
-  record_seen_with(*local_, seen_with);
-  state.seen_with = std::move(seen_with);
+  record_sightings(*local_, sightings);
+  state.sightings = std::move(sightings);
   // Join everything on the stack, top first, as Algorithm 2 does at the end of the run.
   // Tentative features all stay, as in the EKF's estimate: the maps after them may not have
   // had their chance to confirm them yet (and resolve() still points at them). A weak join of
@@ -933,7 +944,7 @@ Estimate DCSlam::estimate() const {
   std::shared_ptr<GaussianMap> joined = std::move(state.result);
   state.joined = TreeMap();
   // The duplicates the joins left, pairs no join could decide (docs/data_association.md).
-  merge_duplicates(*joined, aliases, state.seen_with, merged);
+  merge_duplicates(*joined, aliases, state.sightings, merged);
   if (config_.tree_relinearisation > 0 && !stack.empty()) {
     // The same pairs, every join redone from the local maps and re-linearised (join_tree.hpp).
     std::vector<TreeSpan> spans;

@@ -94,6 +94,13 @@ class SlamConfig:
             bends no later decision; on the simulator's revisit scenes 0.999 raises D&C's
             pairwise recall by 0.01-0.02 at a precision cost of about 0.001
             (docs/data_association.md, "Duplicates merged in D&C's estimate").
+        final_merge_shared_scans: D&C only: in that final merge, two features paired in one
+            scan (two measurements of one scan are two landmarks, unless one pairing was
+            wrong) may still be merged when they were seen together in at most this many
+            scans (>= 0) and each was also seen in a scan without the other. 1 by default;
+            0 never merges features seen in one scan, the rule of the merges inside a map.
+            The EKF ignores it (docs/data_association.md, "Duplicates merged in D&C's
+            estimate").
         weak_join_pairings: D&C only: a join of 8 local maps or more that makes at most this
             many pairs (>= 0), some of them with a feature seen once, is weak: it also builds
             its result without those pairs and, from 16 local maps, without any pair, and
@@ -172,6 +179,7 @@ class SlamConfig:
     tentative_window: int = 5
     merge_radius: float = 2.0
     final_merge_confidence: Optional[float] = None
+    final_merge_shared_scans: int = 1
     weak_join_pairings: int = 30
     local_map_features: int = 30
     join_association: JoinAssociation = "rjc"

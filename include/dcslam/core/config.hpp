@@ -63,6 +63,14 @@ struct SlamConfig {
   // same confidence in the local maps' merges does not (docs/data_association.md,
   // "Duplicates merged in D&C's estimate"). The EKF has no final merge and ignores it.
   std::optional<double> final_merge_confidence;
+  // D&C's final merge only: two features seen together in at most this many scans may still
+  // be one landmark, when each was also seen in a scan without the other. One clutter point or
+  // neighbour paired into a duplicate in the same scan as its twin would otherwise keep the two
+  // apart for good, while two distinct landmarks close enough to pass the test are seen
+  // together in nearly every scan that sees the less seen one (docs/data_association.md,
+  // "Duplicates merged in D&C's estimate"). 0: never merge features seen in one scan, the
+  // rule of every merge inside a map. The EKF ignores it.
+  int final_merge_shared_scans = 1;
   // D&C: a join of 8 local maps or more that makes at most this many pairs is weak: it also
   // builds its result without its pairs that have a feature seen once, and the next join
   // (or estimate()'s fold) joins whichever version lets it make more pairs in all

@@ -67,9 +67,12 @@ class EkfSlam : public SlamFilter {
   const std::unordered_set<std::int64_t>& removed_ids() const { return removed_ids_; }
   // Duplicated features merged so far: merged id -> the id of the feature it was merged into.
   const IdAliases& merged_ids() const { return merged_into_; }
-  // Ids of the features within merge_radius seen in one scan with feature k (ids as they were
-  // then: merged_ids() maps those merged since). Recorded in modes "nn"/"jcbb" only.
+  // Ids of the features within merge_radius seen in one scan with feature k, once per such scan
+  // (ids as they were then: merged_ids() maps those merged since; a pair's scans are listed on
+  // either feature, up to final_merge_shared_scans + 1). Recorded in modes "nn"/"jcbb" only.
   const std::vector<std::int64_t>& seen_with(Index k) const { return tracks_[static_cast<std::size_t>(k)].seen_with; }
+  // The scans in which feature k was paired (or started), its merged duplicates' included.
+  int sightings(Index k) const { return tracks_[static_cast<std::size_t>(k)].sightings; }
 
   // Hands the map over (D&C closing a local map) and restarts this filter as a fresh one at
   // the origin of a new base frame. Stats and the fresh-id counter carry on.
@@ -108,7 +111,8 @@ class EkfSlam : public SlamFilter {
   void merge_duplicates(const std::vector<Index>& touched);
   // The one feature that feature k may be merged with (see SlamConfig::merge_radius), or -1.
   Index merge_partner(Index k) const;
-  bool seen_together(Index a, Index b) const;
+  // The scans in which features a and b were both paired, as recorded (record_seen_together).
+  std::int64_t shared_scans(Index a, Index b) const;
   void ensure_workspace(Index rows, Index measurement_rows);
   StepStats& current_step();
   void finish_timing(std::chrono::steady_clock::time_point start);
@@ -125,8 +129,10 @@ class EkfSlam : public SlamFilter {
     int sightings = 0;
     std::int64_t first_seen_step = 0;
     std::int64_t last_seen_step = 0;
-    // Ids of the features within merge_radius that were seen in one scan with this one: two
-    // measurements of one scan come from two landmarks, so those are never its duplicates.
+    // Ids of the features within merge_radius that were seen in one scan with this one, an id
+    // once per such scan (a pair's scans listed on either of the two, up to
+    // final_merge_shared_scans + 1): two measurements of one scan come from two landmarks, so
+    // the map's own merges never merge such a pair.
     std::vector<std::int64_t> seen_with;
   };
   std::vector<Track> tracks_;

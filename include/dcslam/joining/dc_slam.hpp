@@ -39,11 +39,15 @@
 
 namespace dcslam {
 
-// Feature id -> the ids of the features within merge_radius seen in one scan with it, in its
-// local map (ids as they were then; the merges since map them on). Two measurements of one
-// scan come from two landmarks: D&C's final duplicate merge never merges such a pair. A feature
-// seen with none has no entry.
-using SeenWith = std::unordered_map<std::int64_t, std::vector<std::int64_t>>;
+// What D&C's final duplicate merge asks of a feature: in how many scans it was seen (summed over
+// its local maps and the merges since) and the ids of the features within merge_radius seen in
+// one scan with it, once per such scan (EkfSlam::seen_with(); ids as they were then, the merges
+// since map them on). Two measurements of one scan come from two landmarks.
+struct Sightings {
+  int scans = 0;
+  std::vector<std::int64_t> seen_with;
+};
+using SightingsById = std::unordered_map<std::int64_t, Sightings>;
 
 struct JoinEvent {
   int index = 0;         // joins in creation order
@@ -158,7 +162,7 @@ class DCSlam : public SlamFilter {
     std::vector<int> queue;                    // indices of the queued joins
     std::vector<JoinEvent> pending_events;     // of the pending joins, as they were
     IdAliases merged_into;
-    SeenWith seen_with;
+    SightingsById sightings;
     std::map<std::string, double> closed_maps_counters;
     JoinTree tree;
     LeafLog open_log;  // of the local map before the update
@@ -219,7 +223,7 @@ class DCSlam : public SlamFilter {
     TreeMap joined;
     std::shared_ptr<GaussianMap> result;  // joined's map as the last fold join made it, mutable
     IdAliases aliases;
-    SeenWith seen_with;
+    SightingsById sightings;
     std::vector<JoinPairingRecord> records;
     std::int64_t leaves = 1;  // local maps folded, the open one included
     // Set when a fold comparing versions took a later weak fold join (of kMinWeakJoinLeaves
@@ -280,11 +284,11 @@ class DCSlam : public SlamFilter {
                                    FoldAssociations& associations) const;
   // Merges the duplicates the joins left in the estimate's `map` as the EKF merges its own
   // (never seen in one scan, each the other's only compatible feature within merge_radius),
-  // the test with join_feature_sigma as at a join. The ids of `seen_with`'s lists follow the
+  // the test with join_feature_sigma as at a join. The ids of `sightings`' lists follow the
   // open local map's merges, `merged` (merged_into_ as estimate() copied it) and `aliases`.
-  // Records the merges in `aliases` and `seen_with`. Off with merge_radius 0 or known
+  // Records the merges in `aliases` and `sightings`. Off with merge_radius 0 or known
   // association.
-  void merge_duplicates(GaussianMap& map, IdAliases& aliases, SeenWith& seen_with, const IdAliases& merged) const;
+  void merge_duplicates(GaussianMap& map, IdAliases& aliases, SightingsById& sightings, const IdAliases& merged) const;
   // Follows merged_into_, then the last estimate()'s aliases while they are current.
   std::int64_t resolve_one(std::int64_t id) const;
   Vec3 node_robot(const Node& node) const;
@@ -308,7 +312,7 @@ class DCSlam : public SlamFilter {
   std::deque<std::shared_ptr<JoinTask>> queue_;
   std::vector<JoinEvent> events_;
   IdAliases merged_into_;
-  SeenWith seen_with_;  // of the features of the closed local maps and of the joins done
+  SightingsById sightings_;  // of the features of the closed local maps and of the joins done
   std::shared_ptr<const JoinOracle> join_oracle_;
   JoinTree tree_;  // with tree_relinearisation > 0; front end only
   // What the open local map was built from (tree_relinearisation > 0; front end only): each
