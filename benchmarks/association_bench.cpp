@@ -214,7 +214,9 @@ AssociationBenchResult benchmark_join_association(const std::vector<Index>& tota
   if (overlap_features < 1) throw InvalidArgument("benchmark_join_association: overlap must be >= 1");
   if (repetitions < 1) throw InvalidArgument("benchmark_join_association: repetitions must be >= 1");
   std::mt19937_64 rng(seed);
-  const double gate = chi2_quantile(2, JoinOptions().rjc.confidence);
+  // The joins of a DCSlam with the default configuration, gates and all.
+  const JoinOptions defaults = join_options_of(SlamConfig());
+  const double gate = chi2_quantile(2, defaults.rjc.confidence);
   AssociationBenchResult result;
   std::vector<double> n, rjc_seconds, jcbb_seconds, all_pairs_seconds;
   for (Index total : total_features) {
@@ -228,7 +230,7 @@ AssociationBenchResult benchmark_join_association(const std::vector<Index>& tota
     row.features = 2 * half;
     row.true_pairs = static_cast<int>(associate_by_id(maps.first, maps.second).size());
 
-    JoinOptions options;
+    JoinOptions options = defaults;
     options.rjc.seed = seed;
     JoinAssociationResult association;
     options.association = JoinAssociation::Rjc;

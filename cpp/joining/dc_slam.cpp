@@ -106,19 +106,7 @@ void DCSlam::set_join_oracle(std::shared_ptr<const JoinOracle> oracle) {
 }
 
 JoinOptions DCSlam::join_options(int index, std::int64_t first_robot_id) const {
-  JoinOptions options;
-  options.association = config_.join_association;
-  options.rjc.confidence = config_.gate_confidence;
-  options.large_overlap_confidence = config_.large_overlap_confidence;
-  options.chunked_jcbb_min_overlap = config_.chunked_jcbb_min_overlap;
-  options.rjc.b = config_.rjc_b;
-  options.rjc.p_good = config_.rjc_p_good;
-  options.rjc.p_fail = config_.rjc_p_fail;
-  options.max_iterations = config_.join_iterations;
-  options.feature_sigma = config_.join_feature_sigma;
-  // Every local-map boundary is the R1 of exactly one join of the tree (or of the anytime
-  // fold): keeping R1 at every join keeps each boundary pose once.
-  options.keep_first_robot = config_.keep_local_map_poses;
+  JoinOptions options = join_options_of(config_);
   options.first_robot_id = first_robot_id;
   options.oracle = join_oracle_;
   // One reproducible stream per join, whatever the order in which joins are run.

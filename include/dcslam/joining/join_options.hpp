@@ -90,4 +90,9 @@ struct JoinOptions {
   std::shared_ptr<JoinAssociationMemo> association_memo;
 };
 
+// The settings a SlamConfig gives every join of a DCSlam: the association and its gates, RJC's
+// draws, the join's feature error and iterations (DCSlam adds each join's own random stream,
+// R1's id and the oracle). A benchmark of joins alone starts from it to test what a run tests.
+JoinOptions join_options_of(const SlamConfig& config);
+
 }  // namespace dcslam
