@@ -53,3 +53,19 @@ def test_a_count_below_one_is_refused():
     result = subprocess.run([sys.executable, str(SCRIPT), "--rjc-seeds", "0"], capture_output=True, text=True)
     assert result.returncode != 0
     assert "--rjc-seeds must be at least 1" in result.stderr
+
+
+def test_known_ids_run_with_the_simulators_ids():
+    # association="known": the filters get the simulator's ids (clutter as -1), so the clustering
+    # is the truth's and only the robot's error is left to score: the NEES ceiling.
+    import dcslam
+
+    module = load_script("benchmarks/revisit_association.py")
+    sim = dcslam.revisit_scenario("small_loop_laps", 0)
+    for filter_name in ("ekf", "dc"):
+        config = dcslam.SlamConfig(association="known", join_association="known")
+        scores, _ = module.run_one(filter_name, sim, config)
+        assert scores.association.pairwise_precision == 1.0
+        assert scores.association.pairwise_recall == 1.0
+        assert scores.association.rejected == scores.association.clutter > 0
+        assert scores.robot.position_error < 0.5
