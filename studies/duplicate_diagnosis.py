@@ -36,8 +36,14 @@ is labelled with its landmark, and the tool counts the true pairs ("pairable"), 
 made, the correct and the wrong ones (and of the wrong, those whose true partner was there),
 and the true pairs left unmade by reason; the totals are split by join size.
 
+With ``--wrong-pairs N``, the wrong pairs of the D&C joins of at most N local maps are
+classified instead (summed over ``--seeds``): with a clutter-born feature; a swap (the true
+partner of one of the two is in the other map); or with the true partner absent; each split by
+how many of the two features hold a single measurement (seen once).
+
 Usage: python studies/duplicate_diagnosis.py SCENARIO [--seed 0] [--filter dc|ekf] [--list] [--joins]
        python studies/duplicate_diagnosis.py SCENARIO --seeds N [--filter dc|ekf]   (tables summed over seeds)
+       python studies/duplicate_diagnosis.py SCENARIO --wrong-pairs 8 [--seeds N]
        [--set FIELD=VALUE ...]   (SlamConfig overrides, e.g. local_map_features=20, or seed=S for
         another RJC draw than the scene's seed)
        (SCENARIO: a dcslam.REVISIT_SCENARIOS name or one of the paper's trajectories, e.g. lawn_mowing:
@@ -226,6 +232,47 @@ def where_kind(where: str) -> str:
     return "join" if where.startswith("join") else where
 
 
+WRONG_KINDS = ("with a clutter-born feature", "a swap (a true partner in the other map)", "the true partners absent")
+ONCE = ("both features once", "one once", "neither")
+
+
+def wrong_pair_kinds(name: str, seeds, max_leaves: int, overrides=None):
+    """Counts the right pairs and the wrong ones by kind (WRONG_KINDS x ONCE) of the D&C joins of
+    at most `max_leaves` local maps; each feature labelled by the majority of its measurements."""
+    counts = collections.Counter()
+    for seed in seeds:
+        sim = simulation(name, seed)
+        config = dcslam.SlamConfig(**{**dict(association="jcbb", join_association="rjc", amortize=False, seed=seed),
+                                      **(overrides or {})})
+        slam, returned, _ = run("dc", sim, config)
+        raw = np.concatenate(returned)
+        features, landmarks = evaluation.feature_landmarks(np.asarray(sim.true_ids)[: len(raw)], raw)
+        label = dict(zip(features.tolist(), landmarks.tolist()))
+        measurements = collections.Counter(raw.tolist())
+        for event, record in zip(sorted(slam.stats.joins, key=lambda j: j["index"]), slam.join_pairings()):
+            if event["leaves"] > max_leaves:
+                continue
+            first = {label.get(i, -1) for i in record["first_ids"].tolist()}
+            second = {label.get(j, -1) for j in record["second_ids"].tolist()}
+            for i, j in record["pairs"].tolist():
+                li, lj = label.get(i, -1), label.get(j, -1)
+                if li == lj and li >= 0:
+                    counts["right"] += 1
+                    continue
+                kind = 0 if li < 0 or lj < 0 else 1 if (lj in first or li in second) else 2
+                once = 2 - (measurements[i] == 1) - (measurements[j] == 1)
+                counts[(WRONG_KINDS[kind], ONCE[once])] += 1
+    return counts
+
+
+def print_wrong_pair_kinds(counts, max_leaves: int) -> None:
+    wrong = sum(v for k, v in counts.items() if k != "right")
+    print(f"joins of at most {max_leaves} local maps: {counts['right']} right pairs, {wrong} wrong")
+    print(f"{'wrong pairs':44s} " + " ".join(f"{o:>18s}" for o in ONCE))
+    for kind in WRONG_KINDS:
+        print(f"{kind:44s} " + " ".join(f"{counts[(kind, o)]:18d}" for o in ONCE))
+
+
 def print_join_sizes(joins) -> None:
     """The join scores summed over the joins of at most 4 leaves and over the larger ones."""
     if not joins:
@@ -257,8 +304,16 @@ def main() -> None:
                         help="sum the summary tables over seeds 0..N-1 (instead of one seed's details)")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="SlamConfig overrides (e.g. local_map_features=20; seed=S for another RJC draw)")
+    parser.add_argument("--wrong-pairs", type=int, default=None, metavar="N",
+                        help="D&C: classify the wrong pairs of the joins of at most N local maps")
     args = parser.parse_args()
     overrides = parse_overrides(args.set)
+    if args.wrong_pairs is not None:
+        if args.filter != "dc":
+            parser.error("--wrong-pairs scores D&C's joins; the EKF has none")
+        seeds = list(range(args.seeds)) if args.seeds is not None else [args.seed]
+        print_wrong_pair_kinds(wrong_pair_kinds(args.scenario, seeds, args.wrong_pairs, overrides), args.wrong_pairs)
+        return
     if args.seeds is not None:
         if args.seeds < 1:
             parser.error(f"--seeds must be at least 1, got {args.seeds}")

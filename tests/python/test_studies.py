@@ -159,3 +159,18 @@ def test_duplicate_diagnosis_takes_config_overrides():
     assert joins_listed("--set", "local_map_features=20") > joins_listed()
     refused = run_study("duplicate_diagnosis.py", "small_loop_laps", "--set", "local_map_features", check=False)
     assert refused.returncode != 0 and "FIELD=VALUE" in refused.stderr
+
+
+def test_duplicate_diagnosis_classifies_the_small_joins_wrong_pairs():
+    """--wrong-pairs: the kinds add up to the joins' wrong pairs, which --joins counts too."""
+    printed = run_study("duplicate_diagnosis.py", "small_loop_laps", "--wrong-pairs", 1000).stdout
+    lines = printed.splitlines()
+    right, wrong = (int(w) for w in lines[0].replace(",", "").split()[-5::3])
+    counts = [int(x) for line in lines[2:5] for x in line.split()[-3:]]
+    assert right > 0 and wrong == sum(counts) > 0
+    joins = run_study("duplicate_diagnosis.py", "small_loop_laps", "--joins").stdout.splitlines()
+    header = next(k for k, line in enumerate(joins) if line.split()[:2] == ["index", "leaves"])
+    rows = [line.split() for line in joins[header + 1:] if line.split() and line.split()[0].isdigit()]
+    assert sum(int(r[8]) for r in rows) == wrong and sum(int(r[7]) for r in rows) == right
+    refused = run_study("duplicate_diagnosis.py", "small_loop_laps", "--wrong-pairs", 8, "--filter", "ekf", check=False)
+    assert refused.returncode != 0 and "the EKF has none" in refused.stderr
