@@ -38,6 +38,7 @@ void EkfPairingModel::reset(const GaussianMap& map, ObservationModel observation
   for (int feature : prepared_features_) slot_of_feature_[static_cast<std::size_t>(feature)] = -1;
   prepared_features_.clear();
   predictions_.clear();
+  std::fill(known_.begin(), known_.end(), std::uint8_t{0});
   slot_of_feature_.resize(static_cast<std::size_t>(map.num_features()), -1);
 }
 
@@ -72,16 +73,48 @@ Vec2 EkfPairingModel::innovation(const Pairing& pairing) const {
                             prediction(pairing.feature).z_hat);
 }
 
-Mat2 EkfPairingModel::covariance(const Pairing& a, const Pairing& b) const {
-  const Prediction& pa = prediction(a.feature);
-  const Prediction& pb = prediction(b.feature);
+void EkfPairingModel::compute_feature_covariance(int feature_a, int feature_b, Mat2& C) const {
+  const Prediction& pa = prediction(feature_a);
+  const Prediction& pb = prediction(feature_b);
   const auto P = map_->P();
-  const Index ja = GaussianMap::feature_offset(a.feature);
-  const Index jb = GaussianMap::feature_offset(b.feature);
-  Mat2 C = pa.H_robot * P.topLeftCorner<3, 3>() * pb.H_robot.transpose();
+  const Index ja = GaussianMap::feature_offset(feature_a);
+  const Index jb = GaussianMap::feature_offset(feature_b);
+  C = pa.H_robot * P.topLeftCorner<3, 3>() * pb.H_robot.transpose();
   C.noalias() += pa.H_robot * P.block<3, 2>(0, jb) * pb.H_feature.transpose();
   C.noalias() += pa.H_feature * P.block<2, 3>(ja, 0) * pb.H_robot.transpose();
   C.noalias() += pa.H_feature * P.block<2, 2>(ja, jb) * pb.H_feature.transpose();
+}
+
+Mat2 EkfPairingModel::feature_covariance(int feature_a, int feature_b) const {
+  prediction(feature_a);  // both must be prepared
+  prediction(feature_b);
+  const int slot_a = slot_of_feature_[static_cast<std::size_t>(feature_a)];
+  const int slot_b = slot_of_feature_[static_cast<std::size_t>(feature_b)];
+  const int slots = std::max(slot_a, slot_b) + 1;
+  if (slots > kCachedSlots) {
+    Mat2 C;
+    compute_feature_covariance(feature_a, feature_b, C);
+    return C;
+  }
+  if (slots > cached_slots_) {
+    // Features are prepared as a scan's candidates are found, so the table grows rarely:
+    // start it again, larger.
+    cached_slots_ = std::min(kCachedSlots, std::max({2 * cached_slots_, slots, 16}));
+    const auto cells = static_cast<std::size_t>(cached_slots_) * static_cast<std::size_t>(cached_slots_);
+    covariance_cache_.assign(cells, Mat2::Zero());
+    known_.assign(cells, 0);
+  }
+  const std::size_t cell = static_cast<std::size_t>(slot_a) * static_cast<std::size_t>(cached_slots_) +
+                           static_cast<std::size_t>(slot_b);
+  if (!known_[cell]) {
+    compute_feature_covariance(feature_a, feature_b, covariance_cache_[cell]);
+    known_[cell] = 1;
+  }
+  return covariance_cache_[cell];
+}
+
+Mat2 EkfPairingModel::covariance(const Pairing& a, const Pairing& b) const {
+  Mat2 C = feature_covariance(a.feature, b.feature);
   if (a.measurement == b.measurement) C += 0.5 * (noise(a.measurement) + noise(a.measurement).transpose());
   return C;
 }

@@ -275,5 +275,48 @@ TEST_P(PairingModelProperties, CovarianceIsTheInnovationsSampledCovariance) {
 INSTANTIATE_TEST_SUITE_P(EveryModel, PairingModelProperties, ::testing::ValuesIn(every_model()),
                          [](const ::testing::TestParamInfo<Case>& info) { return info.param.name; });
 
+// The EKF model keeps each scan's H_a P H_b' blocks (up to EkfPairingModel's table of 256
+// prepared features, computed directly beyond): on a map of 300 features, every block against
+// H P H' with the Jacobians by central differences of observe(), before and after a reset()
+// onto another map (a kept block must not outlive the scan), with the measurement noise on a
+// shared measurement only.
+TEST(EkfPairingModelBlocks, AreHPHtBeyondTheTableAndAfterAReset) {
+  std::mt19937_64 rng(11);
+  const Vec3 offset(0.4, -0.2, 0.1);
+  MeasurementMatrix z = MeasurementMatrix::Zero(2, 2);
+  const std::vector<Mat2> R{Mat2(Vec2(4e-4, 1e-4).asDiagonal()), Mat2(Vec2(9e-4, 4e-4).asDiagonal())};
+  ScanNoise noise;
+  noise.assign(R, 2);
+  const auto jacobian = [&](const GaussianMap& map, int feature) {
+    Eigen::Matrix<double, 2, Eigen::Dynamic> H = Eigen::Matrix<double, 2, Eigen::Dynamic>::Zero(2, map.dim());
+    const Index columns[5] = {0, 1, 2, GaussianMap::feature_offset(feature), GaussianMap::feature_offset(feature) + 1};
+    for (const Index c : columns) {
+      GaussianMap up = map, down = map;
+      up.x()(c) += 1e-6;
+      down.x()(c) -= 1e-6;
+      H.col(c) = (observe(ObservationModel::RangeBearing, offset, up.robot(), up.feature(feature)) -
+                  observe(ObservationModel::RangeBearing, offset, down.robot(), down.feature(feature))) / 2e-6;
+    }
+    return H;
+  };
+  EkfPairingModel model;
+  for (const std::uint64_t draw : {0, 1}) {
+    const GaussianMap map = random_map(rng, 300, 1000 * static_cast<std::int64_t>(draw));
+    model.reset(map, ObservationModel::RangeBearing, offset, z, noise);
+    // Prepared out of order, so that table slots and feature indices differ.
+    for (int j = map.num_features() - 1; j >= 0; --j) model.prepare(j);
+    for (const auto& [a, b] : std::vector<std::pair<int, int>>{{299, 299}, {299, 0}, {0, 299}, {5, 17}, {44, 44},
+                                                              {100, 250}, {250, 100}, {43, 2}}) {
+      const Eigen::MatrixXd expected = jacobian(map, a) * map.P() * jacobian(map, b).transpose();
+      for (int repeat = 0; repeat < 2; ++repeat) {
+        const Mat2 other = model.covariance(Pairing{0, a}, Pairing{1, b});
+        const Mat2 shared = model.covariance(Pairing{1, a}, Pairing{1, b});
+        EXPECT_LT((other - expected).cwiseAbs().maxCoeff(), 1e-8) << a << ", " << b << " draw " << draw;
+        EXPECT_LT((shared - expected - R[1]).cwiseAbs().maxCoeff(), 1e-8) << a << ", " << b << " draw " << draw;
+      }
+    }
+  }
+}
+
 }  // namespace
 }  // namespace dcslam

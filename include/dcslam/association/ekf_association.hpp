@@ -55,6 +55,11 @@ class EkfPairingModel : public PairingModel {
  private:
   const Prediction& prediction(int feature) const;
   const Mat2& noise(int measurement) const;
+  // H_a P H_b' of two prepared features, kept for the scan while at most kCachedSlots features
+  // are prepared: JCBB's nodes and the rival searches ask for the same blocks again and again.
+  Mat2 feature_covariance(int feature_a, int feature_b) const;
+  void compute_feature_covariance(int feature_a, int feature_b, Mat2& C) const;
+  static constexpr int kCachedSlots = 256;  // a 2 MB table at most
 
   const GaussianMap* map_ = nullptr;
   ObservationModel observation_ = ObservationModel::RangeBearing;
@@ -64,6 +69,11 @@ class EkfPairingModel : public PairingModel {
   std::vector<int> slot_of_feature_;     // -1 = not prepared; only prepared entries are reset
   std::vector<int> prepared_features_;
   std::vector<Prediction> predictions_;
+  // feature_covariance()'s blocks by (slot of a, slot of b), `cached_slots_` a side; `known_`
+  // marks those computed since reset().
+  mutable std::vector<Mat2> covariance_cache_;
+  mutable std::vector<std::uint8_t> known_;
+  mutable int cached_slots_ = 0;
 };
 
 // Upper bound on |g(x_R, z) - f_j| over every feature j whose pairing with z passes a 2-dof
