@@ -729,8 +729,9 @@ std::shared_ptr<JoinAssociationMemo> DCSlam::FoldAssociations::memo(const std::s
 }
 
 DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& inputs, std::size_t position,
-                               FoldAssociations& associations, bool comparing_versions) const {
-  for (; position < inputs.size(); ++position) {
+                               FoldAssociations& associations, bool comparing_versions, std::size_t end) const {
+  const std::size_t stop = std::min(end, inputs.size());
+  for (; position < stop; ++position) {
     const FoldInput& input = inputs[position];
     for (const JoinIds& ids : input.settled) record_ids(ids, state.aliases, state.sightings);
     auto make = [options = join_options(fold_join_index(position), input.robot_id), &associations, position](
@@ -740,7 +741,7 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
       join_options.fixed_pairs = std::move(fixed_pairs);
       return std::make_unique<MapJoin>(first.map, second.map, std::move(join_options));
     };
-    const bool last = position + 1 == inputs.size();
+    const bool last = position + 1 == stop;
     const bool associate_only = last && comparing_versions;
     const std::shared_ptr<const JoinAlternative> previous_alternative = state.joined.alternative;
     state.result.reset();  // the join holds its input as long as it needs it
@@ -818,9 +819,7 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
   // seen once, and the last fold join then finds 88 of its 189 true pairs as candidates).
   const std::shared_ptr<const JoinAlternative> alternative = std::move(state.joined.alternative);
   const std::size_t weak = position - 1;  // the weak join's record
-  FoldState best;
-  std::size_t best_pairs = 0;
-  for (int version = 0; version <= static_cast<int>(alternative->versions.size()); ++version) {
+  const auto start_of = [&](int version) {
     FoldState start = state;
     if (version > 0) {
       const JoinAlternative::Version& taken = alternative->versions[static_cast<std::size_t>(version - 1)];
@@ -828,7 +827,34 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
       start.records[weak].pairs = alternative->ids_of(version).record_pairs();
     }
     record_ids(alternative->ids_of(version), start.aliases, start.sightings);
-    FoldState rest = fold(std::move(start), inputs, position, associations, /*comparing_versions=*/true);
+    return start;
+  };
+  // A version that does not let the next fold join make more pairs of its own than the join as
+  // made does not change what that join can pair, so the rest of the fold would only count the
+  // pairs it left out: it is not carried through (the rest of the fold is most of estimate()'s
+  // work on a loop closed in the fold). The next join's association is kept for the fold after.
+  std::vector<int> compared{0};
+  const int versions = static_cast<int>(alternative->versions.size());
+  if (position + 1 < inputs.size()) {
+    std::size_t next_of_made = 0;
+    for (int version = 0; version <= versions; ++version) {
+      const FoldState next = fold(start_of(version), inputs, position, associations, /*comparing_versions=*/true,
+                                  position + 1);
+      const std::size_t next_pairs = next.records[position].pairs.size();
+      if (version == 0) {
+        next_of_made = next_pairs;
+      } else if (next_pairs > next_of_made) {
+        compared.push_back(version);
+      }
+    }
+    if (compared.size() == 1) return fold(start_of(0), inputs, position, associations);
+  } else {
+    for (int version = 1; version <= versions; ++version) compared.push_back(version);
+  }
+  FoldState best;
+  std::size_t best_pairs = 0;
+  for (const int version : compared) {
+    FoldState rest = fold(start_of(version), inputs, position, associations, /*comparing_versions=*/true);
     std::size_t pairs = 0;
     for (std::size_t k = weak; k < rest.records.size(); ++k) pairs += rest.records[k].pairs.size();
     if (version == 0 || pairs > best_pairs) {

@@ -262,8 +262,10 @@ class DCSlam : public SlamFilter {
   // the later weak joins of kMinWeakJoinLeaves local maps or more are taken as made (the state
   // after the first kept in after_first_weak), and the last fold join is only associated
   // (FoldState::last_join).
+  // `end`: the fold stops before that position (its last join, then, is the one before it).
   FoldState fold(FoldState state, const std::vector<FoldInput>& inputs, std::size_t position,
-                 FoldAssociations& associations, bool comparing_versions = false) const;
+                 FoldAssociations& associations, bool comparing_versions = false,
+                 std::size_t end = static_cast<std::size_t>(-1)) const;
   // Runs the fold join at `position` to its end, or with `associate_only` until its pairs are
   // known; a failure names the stack's map.
   static void run_fold_join(DecidingJoin& join, const std::vector<FoldInput>& inputs, std::size_t position,
@@ -279,7 +281,8 @@ class DCSlam : public SlamFilter {
   // one that makes the most pairs over the weak join and every fold join after it (a tie keeps
   // the tighter version); the fold then goes on from that version, deciding the later weak
   // joins the same way (docs/data_association.md, "The final fold decides by the rest of the
-  // fold").
+  // fold"). A looser version is carried through only if the next fold join makes more pairs
+  // of its own with it than with the join as made.
   FoldState decide_by_rest_of_fold(FoldState state, const std::vector<FoldInput>& inputs, std::size_t position,
                                    FoldAssociations& associations) const;
   // Merges the duplicates the joins left in the estimate's `map` as the EKF merges its own
