@@ -132,14 +132,27 @@ def run(filter_name: str, sim, config, oracle=None):
     return slam, returned, closed_before
 
 
-def diagnose(name: str, seed: int, filter_name: str, overrides=None):
-    sim = simulation(name, seed)
-    config = dcslam.SlamConfig(**{**dict(association="jcbb", join_association="rjc", amortize=False, seed=seed),
-                                  **(overrides or {})})
-    slam, returned, closed_before = run(filter_name, sim, config)
+def run_config(seed: int, overrides=None) -> dcslam.SlamConfig:
+    """JCBB + RJC with immediate joins (each at the step it is created), RJC's draws from the
+    scene's seed, then the caller's overrides."""
+    return dcslam.SlamConfig(**{**dict(association="jcbb", join_association="rjc", amortize=False, seed=seed),
+                                **(overrides or {})})
+
+
+def majority_labels(sim, returned):
+    """Each returned feature id's landmark (the majority of its measurements' true ids), as
+    ``(features, landmarks)`` and as a dict."""
     truth = np.asarray(sim.true_ids)
     features, landmarks = evaluation.feature_landmarks(truth, np.concatenate(returned))
-    label = dict(zip(features.tolist(), landmarks.tolist()))
+    return features, landmarks, dict(zip(features.tolist(), landmarks.tolist()))
+
+
+def diagnose(name: str, seed: int, filter_name: str, overrides=None):
+    sim = simulation(name, seed)
+    config = run_config(seed, overrides)
+    slam, returned, closed_before = run(filter_name, sim, config)
+    truth = np.asarray(sim.true_ids)
+    features, landmarks, label = majority_labels(sim, returned)
     if filter_name == "dc":
         slam, audited, closed_before = run(filter_name, sim, config, (features, landmarks))
         if not all(np.array_equal(a, b) for a, b in zip(returned, audited)):
@@ -242,13 +255,9 @@ def wrong_pair_kinds(name: str, seeds, max_leaves: int, overrides=None):
     counts = collections.Counter()
     for seed in seeds:
         sim = simulation(name, seed)
-        config = dcslam.SlamConfig(**{**dict(association="jcbb", join_association="rjc", amortize=False, seed=seed),
-                                      **(overrides or {})})
-        slam, returned, _ = run("dc", sim, config)
-        raw = np.concatenate(returned)
-        features, landmarks = evaluation.feature_landmarks(np.asarray(sim.true_ids)[: len(raw)], raw)
-        label = dict(zip(features.tolist(), landmarks.tolist()))
-        measurements = collections.Counter(raw.tolist())
+        slam, returned, _ = run("dc", sim, run_config(seed, overrides))
+        _, _, label = majority_labels(sim, returned)
+        measurements = collections.Counter(np.concatenate(returned).tolist())
         for event, record in zip(sorted(slam.stats.joins, key=lambda j: j["index"]), slam.join_pairings()):
             if event["leaves"] > max_leaves:
                 continue
