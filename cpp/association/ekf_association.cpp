@@ -58,10 +58,15 @@ const EkfPairingModel::Prediction* EkfPairingModel::find_prediction(int feature)
   return slot < 0 ? nullptr : &predictions_[static_cast<std::size_t>(slot)];
 }
 
+int EkfPairingModel::slot(int feature) const {
+  if (!find_prediction(feature)) {
+    throw InvalidArgument("EkfPairingModel: feature " + std::to_string(feature) + " not prepared");
+  }
+  return slot_of_feature_[static_cast<std::size_t>(feature)];
+}
+
 const EkfPairingModel::Prediction& EkfPairingModel::prediction(int feature) const {
-  const Prediction* found = find_prediction(feature);
-  if (!found) throw InvalidArgument("EkfPairingModel: feature " + std::to_string(feature) + " not prepared");
-  return *found;
+  return predictions_[static_cast<std::size_t>(slot(feature))];
 }
 
 const Mat2& EkfPairingModel::noise(int measurement) const {
@@ -86,10 +91,7 @@ void EkfPairingModel::compute_feature_covariance(int feature_a, int feature_b, M
 }
 
 Mat2 EkfPairingModel::feature_covariance(int feature_a, int feature_b) const {
-  prediction(feature_a);  // both must be prepared
-  prediction(feature_b);
-  const int slot_a = slot_of_feature_[static_cast<std::size_t>(feature_a)];
-  const int slot_b = slot_of_feature_[static_cast<std::size_t>(feature_b)];
+  const int slot_a = slot(feature_a), slot_b = slot(feature_b);
   const int slots = std::max(slot_a, slot_b) + 1;
   if (slots > kCachedSlots) {
     Mat2 C;

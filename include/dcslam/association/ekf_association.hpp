@@ -53,6 +53,8 @@ class EkfPairingModel : public PairingModel {
   const Prediction* find_prediction(int feature) const;
 
  private:
+  // The index of a prepared feature's prediction; throws if it is not prepared.
+  int slot(int feature) const;
   const Prediction& prediction(int feature) const;
   const Mat2& noise(int measurement) const;
   // H_a P H_b' of two prepared features, kept for the scan while at most kCachedSlots features
