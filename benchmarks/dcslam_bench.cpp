@@ -65,6 +65,7 @@ Options of sim, scaling, vp and isam:
   --keep-local-map-poses 0|1  D&C keeps the robot at every local map's end  [0]
   --tree-relinearisation N  SlamConfig.tree_relinearisation: passes in estimate()  [0]
   --weak-join-pairings N  SlamConfig.weak_join_pairings (0: off)   [30]
+  --join-merge-max-leaves N  SlamConfig.join_merge_max_leaves (0: off)  [0]
   --chunked-jcbb-min-overlap N  SlamConfig.chunked_jcbb_min_overlap (0: off)  [100]
   --seed S                                                          [0]
   --json FILE          write per-step times and totals as JSON
@@ -327,6 +328,8 @@ void apply_run_options(const Args& args, SlamConfig& config) {
   config.join_feature_sigma = real_number(args, "join-feature-sigma", config.join_feature_sigma);
   config.tree_relinearisation = static_cast<int>(number(args, "tree-relinearisation", config.tree_relinearisation));
   config.weak_join_pairings = static_cast<int>(number(args, "weak-join-pairings", config.weak_join_pairings));
+  config.join_merge_max_leaves =
+      static_cast<int>(number(args, "join-merge-max-leaves", config.join_merge_max_leaves));
   config.chunked_jcbb_min_overlap =
       static_cast<int>(number(args, "chunked-jcbb-min-overlap", config.chunked_jcbb_min_overlap));
   const long keep_poses = number(args, "keep-local-map-poses", 0);
@@ -733,7 +736,7 @@ int command_ekf_association(const Args& args) {
 void refuse_unknown_options(const std::string& command, const Args& args) {
   const std::vector<std::string> run = {"filter", "joins", "local-map-features", "join-iterations",
                                         "join-feature-sigma", "keep-local-map-poses",
-                                        "tree-relinearisation", "weak-join-pairings",
+                                        "tree-relinearisation", "weak-join-pairings", "join-merge-max-leaves",
                                         "chunked-jcbb-min-overlap", "seed", "json"};
   const std::vector<std::string> simulated = {"trajectory", "association", "clutter", "odometry-noise-scale",
                                               "gate", "unexplained-density", "new-feature-margin"};

@@ -38,6 +38,7 @@ void define_config(py::module_& m) {
       .def_readwrite("merge_radius", &SlamConfig::merge_radius)
       .def_readwrite("final_merge_confidence", &SlamConfig::final_merge_confidence)
       .def_readwrite("final_merge_shared_scans", &SlamConfig::final_merge_shared_scans)
+      .def_readwrite("join_merge_max_leaves", &SlamConfig::join_merge_max_leaves)
       .def_readwrite("weak_join_pairings", &SlamConfig::weak_join_pairings)
       .def_readwrite("local_map_features", &SlamConfig::local_map_features)
       .def_property(

@@ -26,6 +26,7 @@ py::dict pairing_dict(const JoinPairingRecord& pairing) {
   record["truth_candidate"] = std::vector<bool>(pairing.truth_candidate.begin(), pairing.truth_candidate.end());
   record["truth_consistent"] = std::vector<bool>(pairing.truth_consistent.begin(), pairing.truth_consistent.end());
   record["own_pairs"] = pairing.own_pairs;
+  record["merged"] = pairing.merged;
   return record;
 }
 
@@ -42,6 +43,7 @@ py::dict join_event_dict(const JoinEvent& event) {
   out["pairings"] = event.report.pairings;
   out["deferred_pairings"] = event.report.deferred_pairings;
   out["alternatives_taken"] = event.report.alternatives_taken;
+  out["duplicates_merged"] = event.report.duplicates_merged;
   out["tries"] = event.report.tries;
   out["chunked"] = event.report.chunked;
   out["iterations"] = event.report.iterations;

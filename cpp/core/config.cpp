@@ -62,6 +62,8 @@ void SlamConfig::validate() const {
           "merge_radius: must be finite and >= 0, got " + number_text(merge_radius));
   require(final_merge_shared_scans >= 0,
           "final_merge_shared_scans: must be >= 0, got " + std::to_string(final_merge_shared_scans));
+  require(join_merge_max_leaves >= 0,
+          "join_merge_max_leaves: must be >= 0, got " + std::to_string(join_merge_max_leaves));
   require(!final_merge_confidence || (*final_merge_confidence > 0.0 && *final_merge_confidence < 1.0),
           "final_merge_confidence: must lie in (0, 1) or be None, got " +
               (final_merge_confidence ? number_text(*final_merge_confidence) : std::string()));

@@ -167,6 +167,7 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod<std::uint8_t>(c.final_merge_confidence.has_value());
   out.pod(c.final_merge_confidence.value_or(0.0));
   out.pod(c.final_merge_shared_scans);
+  out.pod(c.join_merge_max_leaves);
   out.pod(c.weak_join_pairings);
   out.pod(c.local_map_features);
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(c.join_association));
@@ -207,6 +208,7 @@ SlamConfig load_config(Reader& in) {
   const auto final_merge_confidence = in.pod<double>();
   if (has_final_merge_confidence) c.final_merge_confidence = final_merge_confidence;
   c.final_merge_shared_scans = in.pod<int>();
+  c.join_merge_max_leaves = in.pod<int>();
   c.weak_join_pairings = in.pod<int>();
   c.local_map_features = in.pod<int>();
   c.join_association = enum_value<JoinAssociation>(in, 3);
@@ -408,6 +410,7 @@ void save_pairing(Writer& out, const JoinPairingRecord& r) {
   save_flags(out, r.truth_candidate);
   save_flags(out, r.truth_consistent);
   save_pairs(out, r.own_pairs);
+  save_pairs(out, r.merged);
 }
 
 JoinPairingRecord load_pairing(Reader& in) {
@@ -421,6 +424,7 @@ JoinPairingRecord load_pairing(Reader& in) {
   r.truth_candidate = load_flags(in);
   r.truth_consistent = load_flags(in);
   r.own_pairs = load_pairs(in);
+  r.merged = load_pairs(in);
   return r;
 }
 
@@ -452,6 +456,7 @@ void save_event(Writer& out, const JoinEvent& e) {
   out.pod(r.dropped_tentative);
   out.pod(r.deferred_pairings);
   out.pod(r.alternatives_taken);
+  out.pod(r.duplicates_merged);
   out.pod(r.iterations);
   out.pod(r.seconds_association);
   out.pod(r.seconds_total);
@@ -476,6 +481,7 @@ JoinEvent load_event(Reader& in) {
   r.dropped_tentative = in.pod<int>();
   r.deferred_pairings = in.pod<int>();
   r.alternatives_taken = in.pod<int>();
+  r.duplicates_merged = in.pod<int>();
   r.iterations = in.pod<int>();
   r.seconds_association = in.pod<double>();
   r.seconds_total = in.pod<double>();

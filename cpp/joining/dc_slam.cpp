@@ -602,6 +602,8 @@ void DCSlam::complete(JoinTask& task) {
   event.step_finished = steps_;
   for (const JoinIds& ids : decided.settled) record_ids(ids, merged_into_, sightings_);
   const std::shared_ptr<Node> result = task.result.lock();
+  event.pairing.merged = merge_after_join(result->leaves, decided, merged_into_, sightings_);
+  event.report.duplicates_merged = static_cast<int>(event.pairing.merged.size());
   result->tentative = std::move(decided.tentative);
   result->map = std::move(decided.map);
   result->alternative = std::move(decided.alternative);
@@ -691,11 +693,11 @@ std::shared_ptr<DCSlam::FrozenNode> DCSlam::freeze(const std::shared_ptr<Node>& 
   return frozen;
 }
 
-TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settled) const {
+TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settled, SettledIds& ids) const {
   if (node.map.map) return node.map;
   // Same inputs and options as the real join: the same result, computed on the side.
-  const TreeMap first = materialize(*node.left, settled);
-  const TreeMap second = materialize(*node.right, settled);
+  const TreeMap first = materialize(*node.left, settled, ids);
+  const TreeMap second = materialize(*node.right, settled, ids);
   const Node& left = *node.left->node;
   const Node& right = *node.right->node;
   const std::unique_ptr<DecidingJoin> join = make_join(first, second, left, right, node.index);
@@ -708,8 +710,23 @@ TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settle
                           "; the filter is unchanged until it runs that join (finish_joins() runs it now)");
   }
   DecidedJoin decided = join->take_result(tentative_of(left, right), node.index);
+  for (const JoinIds& join_ids : decided.settled) record_ids(join_ids, ids.aliases, ids.sightings);
   settled.insert(settled.end(), decided.settled.begin(), decided.settled.end());
+  JoinIds merges;
+  merges.merged = merge_after_join(left.leaves + right.leaves, decided, ids.aliases, ids.sightings);
+  if (!merges.merged.empty()) settled.push_back(std::move(merges));
   return decided.tree_map();
+}
+
+std::vector<std::pair<std::int64_t, std::int64_t>> DCSlam::merge_after_join(int leaves, DecidedJoin& decided,
+                                                                            IdAliases& aliases,
+                                                                            SightingsById& sightings) const {
+  // A small join's unpaired duplicates would otherwise meet every larger join twice. A weak
+  // join's versions wait for the next join, which compares them as they were made.
+  if (leaves > config_.join_merge_max_leaves || decided.alternative) return {};
+  return merge_duplicates(
+      *decided.map, aliases, sightings, [&](std::int64_t id) { return follow_aliases(aliases, id); },
+      decided.tentative);
 }
 
 std::shared_ptr<JoinAssociationMemo> DCSlam::FoldAssociations::memo(const std::shared_ptr<const GaussianMap>& first,
@@ -874,19 +891,19 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
   return decide_by_rest_of_fold(std::move(from), inputs, next, associations);
 }
 
-void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SightingsById& sightings,
-                              const IdAliases& merged) const {
-  if (!(config_.merge_radius > 0.0) || config_.association == Association::Known) return;
+std::vector<std::pair<std::int64_t, std::int64_t>> DCSlam::merge_duplicates(
+    GaussianMap& map, IdAliases& aliases, SightingsById& sightings,
+    const std::function<std::int64_t(std::int64_t)>& as_named, const std::vector<TentativeFeature>& left_out) const {
+  if (!(config_.merge_radius > 0.0) || config_.association == Association::Known) return {};
   const auto& ids = map.ids();
-  // A listed id as the map names it: the open local map's own merges are not in `merged` yet.
-  const auto now = [&](std::int64_t id) {
-    return follow_aliases(aliases, follow_aliases(merged, follow_aliases(local_->merged_ids(), id)));
-  };
+  std::unordered_set<std::int64_t> tentative;
+  for (const TentativeFeature& feature : left_out) tentative.insert(feature.id);
   const auto listed = [&](std::int64_t id, std::int64_t other) -> std::int64_t {
     const auto found = sightings.find(id);
     if (found == sightings.end()) return 0;
     const std::vector<std::int64_t>& seen_with = found->second.seen_with;
-    return std::count_if(seen_with.begin(), seen_with.end(), [&](std::int64_t seen) { return now(seen) == other; });
+    return std::count_if(seen_with.begin(), seen_with.end(),
+                         [&](std::int64_t seen) { return as_named(seen) == other; });
   };
   const auto scans = [&](std::int64_t id) -> std::int64_t {
     const auto found = sightings.find(id);
@@ -899,6 +916,8 @@ void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SightingsByI
   const std::int64_t shared_allowed = config_.final_merge_shared_scans;
   const auto may_be_one = [&](Eigen::Index a, Eigen::Index b) {
     const std::int64_t id_a = ids[static_cast<std::size_t>(a)], id_b = ids[static_cast<std::size_t>(b)];
+    // A feature seen once may still be confirmed (or dropped) by a later join.
+    if (tentative.count(id_a) > 0 || tentative.count(id_b) > 0) return false;
     const std::int64_t shared = listed(id_a, id_b) + listed(id_b, id_a);
     return shared == 0 || (shared <= shared_allowed && scans(id_a) > shared && scans(id_b) > shared);
   };
@@ -909,11 +928,11 @@ void DCSlam::merge_duplicates(GaussianMap& map, IdAliases& aliases, SightingsByI
   // Each merge recorded as it is made: a merged feature's scans and seen-with list go to the one
   // it is kept as, which the next round's partners are tested against (two sightings of one
   // scan would otherwise meet in one feature unnoticed).
-  merge_duplicate_features(map, config_.merge_radius, gate, config_.join_feature_sigma, may_be_one,
-                           [&](std::int64_t from, std::int64_t to) {
-                             add_alias(aliases, from, to);
-                             merge_sightings(sightings, from, to);
-                           });
+  return merge_duplicate_features(map, config_.merge_radius, gate, config_.join_feature_sigma, may_be_one,
+                                  [&](std::int64_t from, std::int64_t to) {
+                                    add_alias(aliases, from, to);
+                                    merge_sightings(sightings, from, to);
+                                  });
 }
 
 // estimate() and pose() report a failure the worker found, as every call does, and rolling
@@ -944,9 +963,10 @@ Estimate DCSlam::estimate() const {
   // had their chance to confirm them yet (and resolve() still points at them). A weak join of
   // the fold is decided by the rest of the fold; the last one's result is final.
   std::vector<FoldInput> inputs;
+  SettledIds settled_ids{merged, state.sightings};
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     FoldInput input;
-    input.map = materialize(**it, input.settled);
+    input.map = materialize(**it, input.settled, settled_ids);
     input.robot_id = (*it)->node->robot_id;
     input.leaves = (*it)->node->leaves;
     inputs.push_back(std::move(input));
@@ -957,8 +977,14 @@ Estimate DCSlam::estimate() const {
   IdAliases& aliases = state.aliases;
   std::shared_ptr<GaussianMap> joined = std::move(state.result);
   state.joined = TreeMap();
-  // The duplicates the joins left, pairs no join could decide (docs/data_association.md).
-  merge_duplicates(*joined, aliases, state.sightings, merged);
+  // The duplicates the joins left, pairs no join could decide (docs/data_association.md). A
+  // listed id as the map names it: the open local map's own merges are not in `merged` yet.
+  merge_duplicates(
+      *joined, aliases, state.sightings,
+      [&](std::int64_t id) {
+        return follow_aliases(aliases, follow_aliases(merged, follow_aliases(local_->merged_ids(), id)));
+      },
+      {});
   if (config_.tree_relinearisation > 0 && !stack.empty()) {
     // The same pairs, every join redone from the local maps and re-linearised (join_tree.hpp).
     std::vector<TreeSpan> spans;

@@ -356,7 +356,8 @@ class DCSlamStats(SlamStats):
             ``pairings``, ``deferred_pairings`` (a weak join's pairs left to the next join's
             decision, or a large join's doubtful pairs, ``cfg.weak_join_pairings``),
             ``alternatives_taken`` (0-2: inputs of which it joined a version other than the
-            one made), ``tries`` (RJC), ``chunked`` (its pairs are chunked JCBB's, which
+            one made), ``duplicates_merged`` (duplicated features merged in its result,
+            ``cfg.join_merge_max_leaves``), ``tries`` (RJC), ``chunked`` (its pairs are chunked JCBB's, which
             paired more than RJC, ``cfg.chunked_jcbb_min_overlap``), ``iterations`` (linearisation points of the
             constraint update, at most ``cfg.join_iterations``; 0 without pairings),
             ``seconds`` (summed over the slices it ran in), ``seconds_association``,
@@ -410,7 +411,9 @@ class DCSlam(SlamFilter):
         then those of the version that join took (its ``alternatives_taken``;
         ``cfg.weak_join_pairings``). Ids are those ``update()`` returned (before
         ``resolve()``), so a simulator's ids label them; see
-        ``studies/duplicate_diagnosis.py --joins``.
+        ``studies/duplicate_diagnosis.py --joins``. ``merged`` ((d, 2) int64): the duplicates
+        merged in the join's result after it, (id merged, id kept) (``cfg.join_merge_max_leaves``;
+        empty in :meth:`fold_pairings`).
 
         With a join oracle set (:meth:`set_join_oracle`), each dict also audits the oracle's
         pairing through the join's own model: ``truth_pairs`` ((t, 2) int64, as ``pairs``),
@@ -486,4 +489,5 @@ def _pairing_record(record: dict) -> dict:
         truth_distance_sq=np.asarray(record["truth_distance_sq"], dtype=float),
         truth_candidate=np.asarray(record["truth_candidate"], dtype=bool),
         truth_consistent=np.asarray(record["truth_consistent"], dtype=bool),
-        own_pairs=np.asarray(record["own_pairs"], dtype=np.int64).reshape(-1, 2))
+        own_pairs=np.asarray(record["own_pairs"], dtype=np.int64).reshape(-1, 2),
+        merged=np.asarray(record["merged"], dtype=np.int64).reshape(-1, 2))

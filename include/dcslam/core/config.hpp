@@ -71,6 +71,15 @@ struct SlamConfig {
   // "Duplicates merged in D&C's estimate"). 0: never merge features seen in one scan, the
   // rule of every merge inside a map. The EKF ignores it.
   int final_merge_shared_scans = 1;
+  // D&C: after each real join whose result spans at most this many local maps (and that keeps
+  // no alternative for the next join to decide), the joined map's duplicates are merged with
+  // the final merge's test (the confidence, shared scans and feature error above), features
+  // still tentative left out. A duplicate a small join left unpaired otherwise enters every
+  // larger join twice (docs/data_association.md, "Duplicates merged after small joins"). 0
+  // (the default): never. 4 gains on runs that keep coming back and loses loop closures on the
+  // paper's loop (a draw of the joins' lottery, measured there); a larger value adds O(k n^2)
+  // for k merges outside the amortized schedule.
+  int join_merge_max_leaves = 0;
   // D&C: a join of 8 local maps or more that makes at most this many pairs is weak: it also
   // builds its result without its pairs that have a feature seen once, and the next join
   // (or estimate()'s fold) joins whichever version lets it make more pairs in all

@@ -20,6 +20,7 @@
 #include <cstdint>
 #include <deque>
 #include <exception>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -206,9 +207,22 @@ class DCSlam : public SlamFilter {
     std::int64_t step_created = 0;  // of the pending join
   };
   std::shared_ptr<FrozenNode> freeze(const std::shared_ptr<Node>& node) const;  // mutex_ held
+  // Ids as the joins left them: merged_into_ and the sightings, then what each pending join
+  // computed on the side did, for the merges after those joins (complete()'s).
+  struct SettledIds {
+    IdAliases aliases;
+    SightingsById sightings;
+  };
   // The map of a frozen node, computing pending joins on copies (never touching the real
-  // tasks); what those joins did to ids is appended to `settled`, oldest first.
-  TreeMap materialize(const FrozenNode& node, std::vector<JoinIds>& settled) const;
+  // tasks) as complete() finishes them, the merges after small joins included; what those
+  // joins did to ids is appended to `settled`, oldest first, and recorded in `ids`.
+  TreeMap materialize(const FrozenNode& node, std::vector<JoinIds>& settled, SettledIds& ids) const;
+  // complete()'s merge after a join that spans `leaves` local maps, on its result `decided`
+  // (nothing when the join is larger than join_merge_max_leaves or keeps a version for the
+  // next join); records the merges in `aliases` and `sightings` and returns them.
+  std::vector<std::pair<std::int64_t, std::int64_t>> merge_after_join(int leaves, DecidedJoin& decided,
+                                                                      IdAliases& aliases,
+                                                                      SightingsById& sightings) const;
   // A map of the stack as estimate()'s fold takes it: materialized, with the ids its pending
   // joins settled, and its robot's pose id.
   struct FoldInput {
@@ -285,13 +299,16 @@ class DCSlam : public SlamFilter {
   // of its own with it than with the join as made.
   FoldState decide_by_rest_of_fold(FoldState state, const std::vector<FoldInput>& inputs, std::size_t position,
                                    FoldAssociations& associations) const;
-  // Merges the duplicates the joins left in the estimate's `map` as the EKF merges its own
-  // (never seen in one scan, each the other's only compatible feature within merge_radius),
-  // the test with join_feature_sigma as at a join. The ids of `sightings`' lists follow the
-  // open local map's merges, `merged` (merged_into_ as estimate() copied it) and `aliases`.
-  // Records the merges in `aliases` and `sightings`. Off with merge_radius 0 or known
-  // association.
-  void merge_duplicates(GaussianMap& map, IdAliases& aliases, SightingsById& sightings, const IdAliases& merged) const;
+  // Merges the duplicates the joins left in `map` as the EKF merges its own (each the other's
+  // only compatible feature within merge_radius, seen together in at most
+  // final_merge_shared_scans scans), the test with join_feature_sigma as at a join and at
+  // final_merge_confidence. `as_named` names an id of `sightings`' lists as `map` does (after
+  // the merges made since the list was recorded); the features listed in `left_out` (still
+  // tentative) are not merged. Records the merges in `aliases` and `sightings` and returns them,
+  // (id merged, id kept). Off with merge_radius 0 or known association.
+  std::vector<std::pair<std::int64_t, std::int64_t>> merge_duplicates(GaussianMap& map, IdAliases& aliases, SightingsById& sightings,
+                       const std::function<std::int64_t(std::int64_t)>& as_named,
+                       const std::vector<TentativeFeature>& left_out) const;
   // Follows merged_into_, then the last estimate()'s aliases while they are current.
   std::int64_t resolve_one(std::int64_t id) const;
   Vec3 node_robot(const Node& node) const;

@@ -34,6 +34,9 @@ struct JoinPairingRecord {
   std::vector<char> truth_candidate;      // passed the individual (pruning) gate
   std::vector<char> truth_consistent;     // passed the gate given the more certain true pairs
   std::vector<std::pair<std::int64_t, std::int64_t>> own_pairs;  // the association's, uncorrected
+  // Duplicates merged in the result after the join (SlamConfig::join_merge_max_leaves): (id
+  // merged, id it was merged into).
+  std::vector<std::pair<std::int64_t, std::int64_t>> merged;
 };
 
 struct JoinReport {
@@ -49,6 +52,8 @@ struct JoinReport {
   // (join_alternatives.hpp); 0 when its result is final.
   int deferred_pairings = 0;
   int alternatives_taken = 0;  // inputs whose alternative this join took (0-2)
+  // Duplicated features merged in the result after the join (SlamConfig::join_merge_max_leaves).
+  int duplicates_merged = 0;
   int iterations = 0;  // linearisation points of the constraint update (0 when r = 0)
   double seconds_association = 0.0;
   double seconds_total = 0.0;  // summed over all the slices the join was run in
