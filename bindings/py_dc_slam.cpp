@@ -43,7 +43,7 @@ py::dict join_event_dict(const JoinEvent& event) {
   out["pairings"] = event.report.pairings;
   out["deferred_pairings"] = event.report.deferred_pairings;
   out["alternatives_taken"] = event.report.alternatives_taken;
-  out["duplicates_merged"] = event.report.duplicates_merged;
+  out["duplicates_merged"] = event.pairing.merged.size();
   out["tries"] = event.report.tries;
   out["chunked"] = event.report.chunked;
   out["iterations"] = event.report.iterations;

@@ -456,7 +456,6 @@ void save_event(Writer& out, const JoinEvent& e) {
   out.pod(r.dropped_tentative);
   out.pod(r.deferred_pairings);
   out.pod(r.alternatives_taken);
-  out.pod(r.duplicates_merged);
   out.pod(r.iterations);
   out.pod(r.seconds_association);
   out.pod(r.seconds_total);
@@ -481,7 +480,6 @@ JoinEvent load_event(Reader& in) {
   r.dropped_tentative = in.pod<int>();
   r.deferred_pairings = in.pod<int>();
   r.alternatives_taken = in.pod<int>();
-  r.duplicates_merged = in.pod<int>();
   r.iterations = in.pod<int>();
   r.seconds_association = in.pod<double>();
   r.seconds_total = in.pod<double>();

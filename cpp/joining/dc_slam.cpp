@@ -603,7 +603,6 @@ void DCSlam::complete(JoinTask& task) {
   for (const JoinIds& ids : decided.settled) record_ids(ids, merged_into_, sightings_);
   const std::shared_ptr<Node> result = task.result.lock();
   event.pairing.merged = merge_after_join(result->leaves, decided, merged_into_, sightings_);
-  event.report.duplicates_merged = static_cast<int>(event.pairing.merged.size());
   result->tentative = std::move(decided.tentative);
   result->map = std::move(decided.map);
   result->alternative = std::move(decided.alternative);

@@ -306,9 +306,9 @@ class DCSlam : public SlamFilter {
   // the merges made since the list was recorded); the features listed in `left_out` (still
   // tentative) are not merged. Records the merges in `aliases` and `sightings` and returns them,
   // (id merged, id kept). Off with merge_radius 0 or known association.
-  std::vector<std::pair<std::int64_t, std::int64_t>> merge_duplicates(GaussianMap& map, IdAliases& aliases, SightingsById& sightings,
-                       const std::function<std::int64_t(std::int64_t)>& as_named,
-                       const std::vector<TentativeFeature>& left_out) const;
+  std::vector<std::pair<std::int64_t, std::int64_t>> merge_duplicates(
+      GaussianMap& map, IdAliases& aliases, SightingsById& sightings,
+      const std::function<std::int64_t(std::int64_t)>& as_named, const std::vector<TentativeFeature>& left_out) const;
   // Follows merged_into_, then the last estimate()'s aliases while they are current.
   std::int64_t resolve_one(std::int64_t id) const;
   Vec3 node_robot(const Node& node) const;

@@ -52,8 +52,6 @@ struct JoinReport {
   // (join_alternatives.hpp); 0 when its result is final.
   int deferred_pairings = 0;
   int alternatives_taken = 0;  // inputs whose alternative this join took (0-2)
-  // Duplicated features merged in the result after the join (SlamConfig::join_merge_max_leaves).
-  int duplicates_merged = 0;
   int iterations = 0;  // linearisation points of the constraint update (0 when r = 0)
   double seconds_association = 0.0;
   double seconds_total = 0.0;  // summed over all the slices the join was run in
