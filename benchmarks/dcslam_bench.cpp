@@ -67,6 +67,7 @@ Options of sim, scaling, vp and isam:
   --weak-join-pairings N  SlamConfig.weak_join_pairings (0: off)   [30]
   --join-merge-max-leaves N  SlamConfig.join_merge_max_leaves (0: off)  [0]
   --chunked-jcbb-min-overlap N  SlamConfig.chunked_jcbb_min_overlap (0: off)  [100]
+  --join-rival-margin N|none  SlamConfig.join_rival_margin (none: off)  [3]
   --seed S                                                          [0]
   --json FILE          write per-step times and totals as JSON
 
@@ -332,6 +333,12 @@ void apply_run_options(const Args& args, SlamConfig& config) {
       static_cast<int>(number(args, "join-merge-max-leaves", config.join_merge_max_leaves));
   config.chunked_jcbb_min_overlap =
       static_cast<int>(number(args, "chunked-jcbb-min-overlap", config.chunked_jcbb_min_overlap));
+  const std::string rival_margin = get(args, "join-rival-margin", "");
+  if (rival_margin == "none") {
+    config.join_rival_margin.reset();
+  } else if (!rival_margin.empty()) {
+    config.join_rival_margin = static_cast<int>(number(args, "join-rival-margin", 0));
+  }
   const long keep_poses = number(args, "keep-local-map-poses", 0);
   if (keep_poses != 0 && keep_poses != 1) {
     throw InvalidArgument("dcslam_bench: --keep-local-map-poses expects 0 or 1");
@@ -737,7 +744,7 @@ void refuse_unknown_options(const std::string& command, const Args& args) {
   const std::vector<std::string> run = {"filter", "joins", "local-map-features", "join-iterations",
                                         "join-feature-sigma", "keep-local-map-poses",
                                         "tree-relinearisation", "weak-join-pairings", "join-merge-max-leaves",
-                                        "chunked-jcbb-min-overlap", "seed", "json"};
+                                        "chunked-jcbb-min-overlap", "join-rival-margin", "seed", "json"};
   const std::vector<std::string> simulated = {"trajectory", "association", "clutter", "odometry-noise-scale",
                                               "gate", "unexplained-density", "new-feature-margin"};
   std::vector<std::string> known;

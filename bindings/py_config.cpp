@@ -54,6 +54,7 @@ void define_config(py::module_& m) {
       .def_readwrite("join_feature_sigma", &SlamConfig::join_feature_sigma)
       .def_readwrite("large_overlap_confidence", &SlamConfig::large_overlap_confidence)
       .def_readwrite("chunked_jcbb_min_overlap", &SlamConfig::chunked_jcbb_min_overlap)
+      .def_readwrite("join_rival_margin", &SlamConfig::join_rival_margin)
       .def_readwrite("tree_relinearisation", &SlamConfig::tree_relinearisation)
       .def_readwrite("seed", &SlamConfig::seed)
       .def_readwrite("amortize", &SlamConfig::amortize)

@@ -27,6 +27,7 @@ py::dict pairing_dict(const JoinPairingRecord& pairing) {
   record["truth_consistent"] = std::vector<bool>(pairing.truth_consistent.begin(), pairing.truth_consistent.end());
   record["own_pairs"] = pairing.own_pairs;
   record["merged"] = pairing.merged;
+  record["disputed"] = pairing.disputed;
   return record;
 }
 

@@ -304,11 +304,11 @@ std::int64_t RjcSearch::step(std::int64_t budget) {
     case Stage::CompleteTry:
       return complete_try();
     case Stage::VerifyTry: {
-      // Stopped once its removals leave the try unable to beat the best one: the rest of its
-      // verification could only remove more.
+      // Stopped once its removals leave the try unable to beat (or rival) the best one: the
+      // rest of its verification could only remove more.
       SequentialAcceptance& acceptance = *try_verification_->acceptance;
       const std::int64_t work = acceptance.step(budget);
-      if (acceptance.done() || !can_beat_best(try_pairings_ - acceptance.removed())) end_of_try();
+      if (acceptance.done() || !worth_verifying(try_pairings_ - acceptance.removed())) end_of_try();
       return work;
     }
     case Stage::Sequential:
@@ -504,7 +504,7 @@ std::int64_t RjcSearch::complete_try() {
   const auto c = static_cast<std::int64_t>(conditional_.size());
   const std::int64_t work = 1 + c * (4 + work_units(static_cast<std::int64_t>(used_features_.size()))) +
                             work_units(static_cast<std::int64_t>(feature_of_.size()));
-  if (options_.verify && pairings > options_.b && can_beat_best(pairings)) {
+  if (options_.verify && pairings > options_.b && worth_verifying(pairings)) {
     // Scored once verified (see rjc()), a pairing per step like the final verification; the
     // kept hypothesis is the try's own, and if it is the best this verification is the final
     // one's (verify_next()). A verification only removes pairings, so a try that cannot beat
@@ -529,9 +529,21 @@ bool RjcSearch::can_beat_best(int pairings) const {
   return pairings > best_pairings_ || (pairings == best_pairings_ && try_score_ < best_score_);
 }
 
+bool RjcSearch::worth_verifying(int pairings) const {
+  return can_beat_best(pairings) || (options_.rival_margin >= 0 && pairings >= best_pairings_ - options_.rival_margin);
+}
+
 void RjcSearch::end_of_try() {
   const bool verified = try_verification_ && try_verification_->acceptance;
   if (verified) try_pairings_ -= try_verification_->acceptance->removed();
+  if (verified && options_.rival_margin >= 0 && try_verification_->acceptance->done()) {
+    std::vector<Pairing>& kept = verified_tries_.emplace_back();
+    for (const Pairing& pairing : try_verification_->order) {
+      if (try_verification_->feature_of[static_cast<std::size_t>(pairing.measurement)] == pairing.feature) {
+        kept.push_back(pairing);
+      }
+    }
+  }
   if (can_beat_best(try_pairings_)) {
     best_pairings_ = try_pairings_;
     best_score_ = try_score_;
@@ -556,6 +568,10 @@ void RjcSearch::end_of_tries() {
     result_.joint_distance_sq = 0.0;
     stage_ = Stage::Done;
   } else if (options_.verify) {
+    if (options_.rival_margin >= 0) {
+      leave_out_disputed();
+      if (stage_ == Stage::Done) return;
+    }
     try_verification_.reset();
     verification_replayed_ = best_verification_ != nullptr;
     if (!verification_replayed_) {  // the best try was its seed alone, which no try verifies
@@ -572,6 +588,70 @@ void RjcSearch::end_of_tries() {
     }
     stage_ = Stage::Sequential;
   } else {
+    stage_ = Stage::Done;
+  }
+}
+
+// The best try's verified hypothesis against every verified try near it in pairings. A try
+// agrees with a pairing of its own that the best try makes too, or that passes the gate
+// conditioned on all the best try's pairings (a try that paired another part of the same
+// alignment: a whole-lap join's tries each pair a part of the overlap); it is a rival when it
+// agrees with fewer than kRivalShare of its pairings: another alignment. The best try's
+// pairings a rival does not make are disputed. Without disputed pairings nothing changes;
+// with them, the rest is verified again (the final verification), in the order the best try
+// accepted them. O(k^2) for each pairing of a near try that the best try does not make.
+void RjcSearch::leave_out_disputed() {
+  if (!best_verification_) {  // the best try was its seed alone: no try verified comes near it
+    verified_tries_.clear();
+    return;
+  }
+  const std::vector<int>& best = best_verification_->feature_of;
+  SequentialAcceptance& acceptance = *best_verification_->acceptance;
+  std::vector<int> consensus = best;
+  int best_pairings = 0;
+  std::unordered_map<int, int> measurement_of;  // the best try's feature -> measurement
+  for (std::size_t i = 0; i < best.size(); ++i) {
+    if (best[i] == kStar) continue;
+    ++best_pairings;
+    measurement_of.emplace(best[i], static_cast<int>(i));
+  }
+  std::vector<char> shared(best.size());
+  for (const std::vector<Pairing>& kept : verified_tries_) {
+    if (static_cast<int>(kept.size()) < best_pairings - options_.rival_margin) continue;
+    std::fill(shared.begin(), shared.end(), 0);
+    int agreeing = 0;
+    for (const Pairing& pairing : kept) {
+      const auto i = static_cast<std::size_t>(pairing.measurement);
+      if (best[i] == pairing.feature) {
+        shared[i] = 1;
+        ++agreeing;
+      } else if (best[i] == kStar && measurement_of.count(pairing.feature) == 0 &&
+                 acceptance.conditional_distance_sq(pairing) <= gate_) {
+        ++agreeing;
+      }
+    }
+    if (agreeing >= kRivalShare * static_cast<double>(kept.size())) continue;
+    ++result_.rivals;
+    for (std::size_t i = 0; i < consensus.size(); ++i) {
+      if (consensus[i] != kStar && !shared[i]) {
+        result_.disputed.push_back(Pairing{static_cast<int>(i), consensus[i]});
+        consensus[i] = kStar;
+      }
+    }
+  }
+  verified_tries_.clear();
+  if (result_.disputed.empty()) return;
+  std::vector<Pairing> order;
+  for (const Pairing& pairing : best_order_) {
+    if (consensus[static_cast<std::size_t>(pairing.measurement)] == pairing.feature) order.push_back(pairing);
+  }
+  best_order_ = std::move(order);
+  result_.feature_of = std::move(consensus);
+  best_verification_.reset();
+  best_pairings_ = static_cast<int>(best_order_.size());
+  result_.pairings = best_pairings_;
+  if (best_pairings_ == 0) {
+    result_.joint_distance_sq = 0.0;
     stage_ = Stage::Done;
   }
 }

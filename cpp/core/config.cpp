@@ -84,6 +84,8 @@ void SlamConfig::validate() const {
           "tree_relinearisation: must lie in [0, 100], got " + std::to_string(tree_relinearisation));
   require(large_overlap_confidence > 0.0 && large_overlap_confidence < 1.0,
           "large_overlap_confidence: must lie in (0, 1), got " + number_text(large_overlap_confidence));
+  require(!join_rival_margin || *join_rival_margin >= 0,
+          "join_rival_margin: must be >= 0 or None, got " + std::to_string(join_rival_margin.value_or(0)));
   require(chunked_jcbb_min_overlap >= 0,
           "chunked_jcbb_min_overlap: must be >= 0 (0: RJC alone), got " + std::to_string(chunked_jcbb_min_overlap));
   require(std::isfinite(join_feature_sigma) && join_feature_sigma >= 0.0,

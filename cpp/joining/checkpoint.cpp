@@ -151,7 +151,7 @@ class Reader {
 
 // A field added to SlamConfig must be added here too (and kCheckpointVersion raised): the size
 // check below fails the build until it is.
-static_assert(sizeof(SlamConfig) == 192, "SlamConfig changed: update save_config/load_config");
+static_assert(sizeof(SlamConfig) == 200, "SlamConfig changed: update save_config/load_config");
 
 void save_config(Writer& out, const SlamConfig& c) {
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(c.observation));
@@ -178,6 +178,8 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod(c.join_feature_sigma);
   out.pod(c.large_overlap_confidence);
   out.pod(c.chunked_jcbb_min_overlap);
+  out.pod<std::uint8_t>(c.join_rival_margin.has_value());
+  out.pod(c.join_rival_margin.value_or(0));
   out.pod(c.tree_relinearisation);
   out.pod(c.seed);
   out.pod<std::uint8_t>(c.amortize);
@@ -219,6 +221,9 @@ SlamConfig load_config(Reader& in) {
   c.join_feature_sigma = in.pod<double>();
   c.large_overlap_confidence = in.pod<double>();
   c.chunked_jcbb_min_overlap = in.pod<int>();
+  const bool has_join_rival_margin = in.flag();
+  const auto join_rival_margin = in.pod<int>();
+  if (has_join_rival_margin) c.join_rival_margin = join_rival_margin;
   c.tree_relinearisation = in.pod<int>();
   c.seed = in.pod<std::uint64_t>();
   c.amortize = in.flag();
@@ -411,6 +416,7 @@ void save_pairing(Writer& out, const JoinPairingRecord& r) {
   save_flags(out, r.truth_consistent);
   save_pairs(out, r.own_pairs);
   save_pairs(out, r.merged);
+  save_pairs(out, r.disputed);
 }
 
 JoinPairingRecord load_pairing(Reader& in) {
@@ -425,6 +431,7 @@ JoinPairingRecord load_pairing(Reader& in) {
   r.truth_consistent = load_flags(in);
   r.own_pairs = load_pairs(in);
   r.merged = load_pairs(in);
+  r.disputed = load_pairs(in);
   return r;
 }
 

@@ -750,7 +750,11 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
   for (; position < stop; ++position) {
     const FoldInput& input = inputs[position];
     for (const JoinIds& ids : input.settled) record_ids(ids, state.aliases, state.sightings);
-    auto make = [options = join_options(fold_join_index(position), input.robot_id), &associations, position](
+    JoinOptions options = join_options(fold_join_index(position), input.robot_id);
+    // The fold's last join decides what no later join can: it commits only to what RJC's rival
+    // hypotheses agree on (SlamConfig::join_rival_margin).
+    if (position + 1 == inputs.size()) options.rjc.rival_margin = config_.join_rival_margin.value_or(-1);
+    auto make = [options = std::move(options), &associations, position](
                     const TreeMap& first, const TreeMap& second, std::shared_ptr<const MapJoin::Pairs> fixed_pairs) {
       JoinOptions join_options = options;
       if (!fixed_pairs) join_options.association_memo = associations.memo(first.map, second.map, position);

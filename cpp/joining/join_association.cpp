@@ -140,6 +140,7 @@ std::int64_t JoinAssociator::candidates_of_next() {
   if (options_.association == JoinAssociation::Rjc && !small_overlap) {
     RjcOptions rjc_options = options_.rjc;
     if (result_.overlap >= kLargeOverlap) rjc_options.confidence = options_.large_overlap_confidence;
+    if (result_.overlap < kRivalMinOverlap) rjc_options.rival_margin = -1;
     confidence_ = rjc_options.confidence;
     auto positions = std::make_shared<std::vector<Vec2>>();
     positions->reserve(candidates_.size());
@@ -169,9 +170,13 @@ std::int64_t JoinAssociator::advance_rjc(std::int64_t budget) {
   if (!rjc_->done()) return spent;
   const RjcResult& rjc_result = rjc_->result();
   result_.tries = rjc_result.tries;
-  if (rjc_result.pairings == 0) {
+  for (const Pairing& pairing : rjc_result.disputed) result_.disputed.emplace_back(pairing.feature, pairing.measurement);
+  // With rivals, RJC's hypothesis is what the near alignments agree on: neither the fallback
+  // nor chunked JCBB, which would decide between them by count, replaces it.
+  const bool rivals = rjc_result.rivals > 0;
+  if (rjc_result.pairings == 0 && !rivals) {
     stage_ = Stage::Jcbb;
-  } else if (chunked_wanted()) {
+  } else if (chunked_wanted() && !rivals) {
     ChunkedJcbbOptions options = chunked_options();
     options.to_beat = rjc_result.pairings;
     chunked_.emplace(candidates_, model_, static_cast<int>(frame_.first().num_features()), options);

@@ -155,6 +155,19 @@ class SlamConfig:
             seeded on a few pairs drawn from the whole overlap, pair only part of it. 100
             (default) by measurement on the simulator's revisit scenes; 0: RJC alone
             (docs/data_association.md, "The EKF's order at large joins").
+        join_rival_margin: D&C: at the last join of :meth:`~dcslam.DCSlam.estimate`'s fold
+            (the newest local maps against the rest of the map, which no later join decides),
+            when its overlap holds at least 100 features, every RJC try within this many
+            pairings of the best one (>= 0) is verified, and a try that agrees with fewer than
+            80 % of its own pairings (made by the best try too, or compatible with all of the
+            best's) is a rival: another alignment of the two maps that the data support nearly
+            as well. The join keeps only the best try's pairings that every rival makes too
+            (and chunked JCBB, which decides by count, does not replace them). A loop closed by
+            a few pairings at the end of a run then stays open rather than closing wrong: the
+            robot keeps its uncertainty instead of ending tens of metres off with a covariance
+            of centimetres. 3 (default) by measurement on the paper's loop and the revisit
+            scenes; None: the best try as it is (docs/data_association.md, "The fold's last
+            join commits only to what its rivals agree on").
         tree_relinearisation: D&C: damped Gauss-Newton passes (>= 0) that
             :meth:`~dcslam.DCSlam.estimate` makes through the whole tree of joins: every kept
             local map is rebuilt from its own odometry and measurements, and every join
@@ -198,6 +211,7 @@ class SlamConfig:
     join_feature_sigma: float = 0.01
     large_overlap_confidence: float = 0.999
     chunked_jcbb_min_overlap: int = 100
+    join_rival_margin: Optional[int] = 3
     tree_relinearisation: int = 0
     seed: int = 0
     amortize: bool = True

@@ -413,7 +413,9 @@ class DCSlam(SlamFilter):
         ``resolve()``), so a simulator's ids label them; see
         ``studies/duplicate_diagnosis.py --joins``. ``merged`` ((d, 2) int64): the duplicates
         merged in the join's result after it, (id merged, id kept) (``cfg.join_merge_max_leaves``;
-        empty in :meth:`fold_pairings`).
+        empty in :meth:`fold_pairings`). ``disputed`` ((d, 2) int64, as ``pairs``): the pairs
+        RJC's best hypothesis made that a rival hypothesis disagrees with, left out
+        (``cfg.join_rival_margin``; only the last record of :meth:`fold_pairings` can hold any).
 
         With a join oracle set (:meth:`set_join_oracle`), each dict also audits the oracle's
         pairing through the join's own model: ``truth_pairs`` ((t, 2) int64, as ``pairs``),
@@ -490,4 +492,5 @@ def _pairing_record(record: dict) -> dict:
         truth_candidate=np.asarray(record["truth_candidate"], dtype=bool),
         truth_consistent=np.asarray(record["truth_consistent"], dtype=bool),
         own_pairs=np.asarray(record["own_pairs"], dtype=np.int64).reshape(-1, 2),
-        merged=np.asarray(record["merged"], dtype=np.int64).reshape(-1, 2))
+        merged=np.asarray(record["merged"], dtype=np.int64).reshape(-1, 2),
+        disputed=np.asarray(record["disputed"], dtype=np.int64).reshape(-1, 2))

@@ -296,6 +296,122 @@ TEST(Rjc, WithPositionsEveryPairingIsTrue) {
   EXPECT_GT(constellation_runs, 0);
 }
 
+// The first map holds one pattern of 3 x 3 features twice, 4 spacings apart; the second map
+// holds the pattern once, its pose known to 2 spacings and estimated midway between the two
+// copies, so both alignments pair all nine features and are about as likely: the data cannot
+// say which copy the second map saw. Three more features of the second map have no partner
+// (so that RJC, which stops once a try pairs the whole overlap, keeps drawing). The truth is
+// the first copy.
+JoinProblem twin_patterns_join(std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal;
+  const double sigma = 0.05, pose_sigma = 2.0 * kSpacing;
+  const Vec2 twin_offset(4.0 * kSpacing, 0.0);
+  JoinProblem problem;
+  TwoMapModel& model = problem.model;
+  const int n1 = 18, n2 = 12;
+  model.first_size = n1;
+  model.x.resize(2 * (n1 + n2));
+  model.P = Eigen::MatrixXd::Zero(2 * (n1 + n2), 2 * (n1 + n2));
+  const auto pattern = [](int k) -> Vec2 { return kSpacing * Vec2(k % 3, k / 3); };
+  for (int i = 0; i < n1; ++i) {
+    const Vec2 place = pattern(i % 9) + (i < 9 ? Vec2(Vec2::Zero()) : twin_offset);
+    model.x.segment<2>(2 * i) = place + sigma * Vec2(normal(rng), normal(rng));
+    model.P.block<2, 2>(2 * i, 2 * i) = sigma * sigma * Mat2::Identity();
+  }
+  for (int j = 0; j < n2; ++j) {
+    const Vec2 place = j < 9 ? pattern(j) : Vec2(pattern(j - 9) + kSpacing * Vec2(0.5, 0.5));
+    model.x.segment<2>(2 * (n1 + j)) = place + 0.5 * twin_offset + sigma * Vec2(normal(rng), normal(rng));
+    problem.truth.push_back(j < 9 ? j : kStar);
+  }
+  // A common translation error of pose_sigma (no rotation): the second map moves as a whole.
+  Eigen::MatrixXd shared = Eigen::MatrixXd::Zero(2 * n2, 2);
+  for (int j = 0; j < n2; ++j) shared.block<2, 2>(2 * j, 0).setIdentity();
+  model.P.bottomRightCorner(2 * n2, 2 * n2) = pose_sigma * pose_sigma * shared * shared.transpose() +
+                                              sigma * sigma * Eigen::MatrixXd::Identity(2 * n2, 2 * n2);
+  CandidateLists all(n2);
+  for (auto& list : all) {
+    for (int i = 0; i < n1; ++i) list.push_back(i);
+  }
+  problem.candidates = individually_compatible(all, model, 0.99);
+  return problem;
+}
+
+// Runs of RJC on twin_patterns_join(0..9), each with RJC seeds 0..4 and more tries than the
+// default (p_fail 1e-6), so that a run meets both alignments more often than not.
+template <typename Check>
+void for_twin_pattern_runs(int rival_margin, Check check) {
+  for (std::uint64_t problem_seed = 0; problem_seed < 10; ++problem_seed) {
+    const JoinProblem problem = twin_patterns_join(problem_seed);
+    for (std::uint64_t seed = 0; seed < 5; ++seed) {
+      RjcOptions options;
+      options.seed = seed;
+      options.p_fail = 1e-6;
+      options.rival_margin = rival_margin;
+      check(problem, options, rjc(problem.candidates, problem.model, options));
+    }
+  }
+}
+
+TEST(Rjc, TwinPatternsArePairedWithEitherCopy) {
+  // The premise of the next test: without rivals RJC commits to one copy or the other.
+  int first_copy = 0, second_copy = 0;
+  for_twin_pattern_runs(-1, [&](const JoinProblem&, const RjcOptions&, const RjcResult& result) {
+    EXPECT_EQ(result.rivals, 0);
+    first_copy += result.feature_of[4] == 4 ? 1 : 0;
+    second_copy += result.feature_of[4] == 13 ? 1 : 0;
+  });
+  EXPECT_GE(first_copy, 5);
+  EXPECT_GE(second_copy, 5);
+}
+
+TEST(Rjc, RivalsLeaveOutTheDisputedPairings) {
+  int with_rivals = 0;
+  for_twin_pattern_runs(0, [&](const JoinProblem& problem, const RjcOptions& options, const RjcResult& result) {
+    RjcOptions plain_options = options;
+    plain_options.rival_margin = -1;
+    const RjcResult plain = rjc(problem.candidates, problem.model, plain_options);
+    if (result.rivals == 0) {
+      EXPECT_EQ(result.feature_of, plain.feature_of);
+      return;
+    }
+    ++with_rivals;
+    // The two copies pair each feature differently, so nothing is agreed.
+    EXPECT_EQ(static_cast<int>(result.disputed.size()), plain.pairings);
+    EXPECT_EQ(result.pairings, 0);
+    EXPECT_EQ(count_pairings(result.feature_of), 0);
+  });
+  EXPECT_GE(with_rivals, 10);
+}
+
+TEST(Rjc, WithRivalsResumedInSlicesGivesBitwiseTheSameResult) {
+  int compared = 0;
+  for_twin_pattern_runs(0, [&](const JoinProblem& problem, const RjcOptions& options, const RjcResult& at_once) {
+    if (at_once.rivals == 0 || compared == 3) return;
+    ++compared;
+    RjcSearch search(problem.candidates, problem.model, options);
+    while (!search.done()) search.advance(7);
+    EXPECT_EQ(search.result().feature_of, at_once.feature_of);
+    EXPECT_EQ(search.result().rivals, at_once.rivals);
+    EXPECT_EQ(search.result().disputed.size(), at_once.disputed.size());
+    EXPECT_EQ(search.remaining_work(), 0);
+  });
+  EXPECT_EQ(compared, 3);
+}
+
+TEST(Rjc, WithoutRivalsTheMarginChangesNothing) {
+  for (std::uint64_t seed = 0; seed < 10; ++seed) {
+    const JoinProblem problem = grid_join(seed, 0, 6, 3, 9);
+    RjcOptions options;
+    options.seed = seed;
+    const RjcResult plain = rjc(problem.candidates, problem.model, options);
+    options.rival_margin = 3;
+    const RjcResult with_margin = rjc(problem.candidates, problem.model, options);
+    EXPECT_EQ(with_margin.rivals, 0) << "seed " << seed;
+    EXPECT_EQ(with_margin.feature_of, plain.feature_of) << "seed " << seed;
+  }
+}
+
 TEST(Rjc, RejectsBadOptions) {
   const JoinProblem problem = grid_join(8, 0, 6, 3, 9);
   RjcOptions options;

@@ -40,7 +40,15 @@ struct RjcOptions {
   // when the uniform tries verify fewer than kConstellationShare of the overlap, max_tries
   // more tries draw local constellations (see rjc()).
   std::shared_ptr<const std::vector<Vec2>> positions;
+  // >= 0: the result keeps only the pairings the best try's rivals agree with (see rjc()): a
+  // rival is a verified try of at least (best's pairings - rival_margin) pairings fewer than
+  // kRivalShare of whose pairings agree with the best try. < 0: the best try as it is.
+  int rival_margin = -1;
 };
+
+// A try fewer than this share of whose pairings agree with the best try is another hypothesis,
+// not the best one with a pairing more or less (rjc(), RjcOptions::rival_margin).
+inline constexpr double kRivalShare = 0.8;
 
 // Share of the overlap that the best uniform try must verify for RJC to stop there when
 // positions are given. A loop closure at large uncertainty in a dense map verifies much less
@@ -57,6 +65,8 @@ struct RjcResult {
   int tries = 0;
   int dropped = 0;  // pairings removed by the final verification
   int completed = 0;  // pairings added by the completion against all kept pairings
+  int rivals = 0;  // tries that rival the best one (RjcOptions::rival_margin)
+  std::vector<Pairing> disputed;  // the best try's pairings left out because a rival disagrees
   // D^2 of the final hypothesis; NaN when verify is off and the hypothesis came from the
   // randomized tries (computing it is the O(k^3) work that verify = false skips).
   double joint_distance_sq = 0.0;
@@ -107,6 +117,19 @@ struct RjcResult {
 // unambiguous: the nearest of its measurement's and of its feature's conditional candidates,
 // each runner-up at least kCompletionMargin further in D^2 (a likelihood ratio of e^2), then
 // re-tested against the pairings added before it. O(c k^2) for c candidates.
+//
+// Rivals (options.rival_margin >= 0): every try within rival_margin pairings of the best one
+// is verified too, and a verified try is the best one's rival when fewer than kRivalShare of
+// its pairings agree with the best try (made by it too, or compatible with all its pairings:
+// tries that each pair a part of one alignment agree): another alignment of the two maps that
+// the data support nearly as well. Then the best try's pairings that some rival does not make (in the same way) are
+// left out before the final verification, so the join commits only to what every near
+// hypothesis agrees on; the completion may add back a pairing that is unambiguous given the
+// rest. A loop closed at the end of a run by a few pairings is the case (docs/
+// data_association.md, "The paper's loop closure"): a shifted alignment collects as many
+// chance pairings in a dense map as the truth has, and a closure left open keeps the robot's
+// uncertainty, where a wrong one is off by tens of metres with a covariance of centimetres.
+// The extra verifications cost O(k^3) each, like the best try's.
 inline constexpr double kCompletionMargin = 4.0;
 
 RjcResult rjc(const CandidateLists& candidates, const PairingModel& model,
@@ -224,6 +247,10 @@ class RjcSearch : public ResumableWork<RjcSearch> {
   void end_of_try();  // the try's verified score against the best
   // Whether a try of `pairings` pairings (and the current try's score) would replace the best.
   bool can_beat_best(int pairings) const;
+  // Whether a try of `pairings` pairings is verified: it could beat the best, or rival it.
+  bool worth_verifying(int pairings) const;
+  // The best try's pairings that a rival disagrees with, left out of its hypothesis.
+  void leave_out_disputed();
   void draw_uniform_sample();
   bool draw_constellation();  // false if fewer than b measurements of O
   std::int64_t completion_next();
@@ -275,6 +302,8 @@ class RjcSearch : public ResumableWork<RjcSearch> {
   int best_pairings_ = 0;
   double best_score_ = 0.0;
   std::vector<Pairing> order_, best_order_;  // pairings in the order the try accepted them
+  // With rival_margin >= 0: the pairings each verified try kept, to find the best try's rivals.
+  std::vector<std::vector<Pairing>> verified_tries_;
   double p_good_ = 0.0;
   double tries_wanted_ = 0.0;
   int constellation_tries_end_ = -1;  // -1: uniform tries; else the try count to stop at

@@ -120,6 +120,18 @@ struct SlamConfig {
   // fraction of it. 0: RJC alone. 100 by measurement (docs/data_association.md, "The EKF's
   // order at large joins").
   int chunked_jcbb_min_overlap = 100;
+  // D&C: at the last join of estimate()'s fold (the newest local maps against the rest of the
+  // map, which no later join decides), when its overlap holds at least 100 features
+  // (kRivalMinOverlap), every RJC try within this many pairings of the best is verified, and a
+  // try that agrees with fewer than 80 % of its own pairings (made by the best too, or
+  // compatible with all the best's) is a rival: another alignment of the maps that the data
+  // support nearly as well. The join then keeps only the best's pairings that every rival makes
+  // too (nor does chunked JCBB, which decides by count, replace them). A loop closed by a few
+  // pairings at the end of a run stays open instead of closing wrong: the robot keeps its
+  // uncertainty rather than ending tens of metres off with a covariance of centimetres. unset:
+  // the best try as it is. 3 by measurement (docs/data_association.md, "The fold's last join
+  // commits only to what its rivals agree on").
+  std::optional<int> join_rival_margin = 3;
   // D&C: damped Gauss–Newton passes that estimate() makes through the whole tree of joins,
   // rebuilding every kept local map from its own odometry and measurements and redoing every
   // join, all linearised at the previous pass's map (join_tree.hpp, leaf_relinearisation.hpp);

@@ -35,6 +35,14 @@ inline constexpr int kRjcMinOverlapSamples = 3;
 // decided at a wider gate").
 inline constexpr int kLargeOverlap = 50;
 
+// From this overlap on, RJC leaves out the pairings its rivals dispute when it is given a
+// rival margin (JoinOptions::rjc.rival_margin; DCSlam gives it to the last join of estimate()'s
+// fold, SlamConfig::join_rival_margin): a loop closure's join. Applied at every join whatever
+// its overlap, two of three runs of the paper's loop tried closed wrong, the pairings left out
+// at small joins redrawing the later ones (docs/data_association.md, "The fold's last join
+// commits only to what its rivals agree on").
+inline constexpr int kRivalMinOverlap = 100;
+
 // Measurement = feature j of the moved m2, feature = feature i of m1; the innovation of the
 // pairing is f'_j - f_i, whose covariance is P_ii + P_jj - P_ij - P_ji in the stacked map,
 // plus feature_sigma^2 I for each feature the two pairings share (each feature carries its
@@ -64,6 +72,9 @@ struct JoinAssociationResult {
   int overlap = 0;
   int tries = 0;
   bool chunked = false;  // the pairs are chunked JCBB's, which paired more than RJC
+  // RJC's pairings (i in m1, j in m2) left out because a rival hypothesis disagrees
+  // (JoinOptions::rjc.rival_margin).
+  std::vector<std::pair<Eigen::Index, Eigen::Index>> disputed;
   std::vector<JoinTruthAudit> truth_audit;  // only with a JoinOracle
   // With a JoinOracle: the association's own pairs, before the oracle corrected them.
   std::vector<std::pair<Eigen::Index, Eigen::Index>> own_pairs;

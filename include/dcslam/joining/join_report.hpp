@@ -37,6 +37,9 @@ struct JoinPairingRecord {
   // Duplicates merged in the result after the join (SlamConfig::join_merge_max_leaves): (id
   // merged, id it was merged into).
   std::vector<std::pair<std::int64_t, std::int64_t>> merged;
+  // RJC's pairs (id in m1, id in m2) left out because a rival hypothesis disagrees
+  // (SlamConfig::join_rival_margin; the last join of estimate()'s fold only).
+  std::vector<std::pair<std::int64_t, std::int64_t>> disputed;
 };
 
 struct JoinReport {
