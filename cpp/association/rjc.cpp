@@ -7,6 +7,7 @@
 #include <random>
 #include <tuple>
 #include <unordered_map>
+#include <unordered_set>
 #include <utility>
 
 #include <Eigen/Cholesky>
@@ -609,11 +610,11 @@ void RjcSearch::leave_out_disputed() {
   SequentialAcceptance& acceptance = *best_verification_->acceptance;
   std::vector<int> consensus = best;
   int best_pairings = 0;
-  std::unordered_map<int, int> measurement_of;  // the best try's feature -> measurement
-  for (std::size_t i = 0; i < best.size(); ++i) {
-    if (best[i] == kStar) continue;
+  std::unordered_set<int> best_features;
+  for (int feature : best) {
+    if (feature == kStar) continue;
     ++best_pairings;
-    measurement_of.emplace(best[i], static_cast<int>(i));
+    best_features.insert(feature);
   }
   std::vector<char> shared(best.size());
   for (const std::vector<Pairing>& kept : verified_tries_) {
@@ -625,7 +626,7 @@ void RjcSearch::leave_out_disputed() {
       if (best[i] == pairing.feature) {
         shared[i] = 1;
         ++agreeing;
-      } else if (best[i] == kStar && measurement_of.count(pairing.feature) == 0 &&
+      } else if (best[i] == kStar && best_features.count(pairing.feature) == 0 &&
                  acceptance.conditional_distance_sq(pairing) <= gate_) {
         ++agreeing;
       }

@@ -106,8 +106,9 @@ class SlamConfig:
             are merged with the final merge's test, features seen once left out, so that
             larger joins do not meet a landmark twice. 0 (the default) never; 4 raises recall
             on runs that keep coming back (long_revisits +0.009, 46 of 60 runs up) but closes
-            the paper's 600-step loop without ids less often (19 of 30 runs against 23)
-            (docs/data_association.md, "Duplicates merged after small joins").
+            the paper's 600-step loop without ids less often (19 of 30 runs against 23,
+            measured before ``join_rival_margin``) (docs/data_association.md, "Duplicates
+            merged after small joins").
         weak_join_pairings: D&C only: a join of 8 local maps or more that makes at most this
             many pairs (>= 0), some of them with a feature seen once, is weak: it also builds
             its result without those pairs and, from 16 local maps, without any pair, and

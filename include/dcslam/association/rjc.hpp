@@ -122,8 +122,8 @@ struct RjcResult {
 // is verified too, and a verified try is the best one's rival when fewer than kRivalShare of
 // its pairings agree with the best try (made by it too, or compatible with all its pairings:
 // tries that each pair a part of one alignment agree): another alignment of the two maps that
-// the data support nearly as well. Then the best try's pairings that some rival does not make (in the same way) are
-// left out before the final verification, so the join commits only to what every near
+// the data support nearly as well. Then the best try's pairings that some rival does not make
+// are left out before the final verification, so the join commits only to what every near
 // hypothesis agrees on; the completion may add back a pairing that is unambiguous given the
 // rest. A loop closed at the end of a run by a few pairings is the case (docs/
 // data_association.md, "The paper's loop closure"): a shifted alignment collects as many
