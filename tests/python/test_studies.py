@@ -53,6 +53,15 @@ def test_vp_join_linearisation_on_a_victoria_park_prefix(tmp_path):
     assert join["m2_local"]["batch"]["converged"]
 
 
+def test_vp_online_relinearisation_on_a_victoria_park_prefix():
+    printed = run_study("vp_online_relinearisation.py", "--max-steps", 600, "--every", 300).stdout
+    rows = [line.split() for line in printed.splitlines() if line.strip()[:1].isdigit()]
+    assert [int(row[0]) for row in rows] == [300, 600]
+    assert all(len(row) == 12 for row in rows)
+    assert "anytime robot (plain estimate()) beyond that ellipse at" in printed
+    assert "of 2 sampled steps" in printed
+
+
 def test_revisit_join_linearisation_on_small_loop_laps():
     printed = run_study("revisit_join_linearisation.py", "--scenario", "small_loop_laps", "--seed", 12,
                         "--min-features", 100, "--max-features", 200).stdout
