@@ -167,18 +167,26 @@ std::string excerpt(const std::string& text) {
   return out;
 }
 
-double parse_number(const std::string& text, const std::string& where, const std::string& field) {
+bool try_parse_number(const std::string& text, double& value) {
   // strtod alone would also take hex floats, "inf" and "nan", and skip leading blanks.
   const bool decimal_characters =
       text.find_first_not_of("0123456789+-.eE") == std::string::npos &&
       text.find_first_of("0123456789") != std::string::npos;
-  const char* begin = text.c_str();
+  if (!decimal_characters) return false;
   char* end = nullptr;
   errno = 0;
-  const double value = decimal_characters ? std::strtod(begin, &end) : 0.0;
-  if (!decimal_characters || *end != '\0' || !std::isfinite(value) || errno == ERANGE)
-    throw ParseError(where + ": field '" + field + "': '" + excerpt(text) + "' is not a number");
+  value = std::strtod(text.c_str(), &end);
+  return *end == '\0' && std::isfinite(value) && errno != ERANGE;
+}
+
+double parse_number(const std::string& text, const std::string& where, const std::string& field) {
+  double value = 0.0;
+  if (!try_parse_number(text, value)) throw not_a_number(text, where, field);
   return value;
+}
+
+ParseError not_a_number(const std::string& text, const std::string& where, const std::string& field) {
+  return ParseError(where + ": field '" + field + "': '" + excerpt(text) + "' is not a number");
 }
 
 std::int64_t parse_integer(const std::string& text, const std::string& where,
@@ -245,8 +253,13 @@ CsvTable::CsvTable(const std::string& path, const std::vector<std::string>& colu
       throw ParseError(reader.where() + ": expected " + std::to_string(header.size()) +
                        " fields (" + excerpt(header.front()) + ".." + excerpt(header.back()) + "), found " +
                        std::to_string(fields.size()));
-    for (std::size_t i = 0; i < columns.size(); ++i)
-      values_[i].push_back(parse_number(trimmed(fields[positions[i]]), reader.where(), columns[i]));
+    for (std::size_t i = 0; i < columns.size(); ++i) {
+      // The line's place is written only for a bad field (per field it was a third of the reading).
+      const std::string text = trimmed(fields[positions[i]]);
+      double value = 0.0;
+      if (!try_parse_number(text, value)) throw not_a_number(text, reader.where(), columns[i]);
+      values_[i].push_back(value);
+    }
     line_numbers_.push_back(reader.line_number());
   }
   if (line_numbers_.empty())

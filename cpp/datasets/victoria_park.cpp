@@ -12,8 +12,10 @@ namespace dcslam {
 namespace {
 constexpr double kHalfPi = 1.57079632679489661923;
 
-void require_within(const std::string& fault, const std::string& where, const char* field) {
-  if (!fault.empty()) throw ParseError(where + ": field '" + field + "': " + fault);
+// The row's place is written only for a fault: building it for every field of every row was
+// a third of the reading.
+void require_within(const std::string& fault, const CsvTable& table, std::size_t row, const char* field) {
+  if (!fault.empty()) throw ParseError(table.where(row) + ": field '" + field + "': " + fault);
 }
 }  // namespace
 
@@ -205,9 +207,9 @@ VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
       throw ParseError(trees.where(i) + ": field 'range_m': must be positive");
     if (diameter < 0.0)
       throw ParseError(trees.where(i) + ": field 'diameter_m': must be non-negative");
-    require_within(distance_fault(range), trees.where(i), "range_m");
-    require_within(angle_fault(bearing), trees.where(i), "bearing_rad");
-    require_within(distance_fault(diameter), trees.where(i), "diameter_m");
+    require_within(distance_fault(range), trees, i, "range_m");
+    require_within(angle_fault(bearing), trees, i, "bearing_rad");
+    require_within(distance_fault(diameter), trees, i, "diameter_m");
     const double centre_range = range + 0.5 * diameter;
     if (centre_range > options.max_range) {
       ++data.detections_beyond_range;

@@ -194,6 +194,8 @@ def test_data_dir_reads_the_same_files(tmp_path):
          ["vp_trees.csv.gz:1", "'range_m'", "missing column"]),
         ("vp_trees.csv.gz", lambda lines: lines.__setitem__(1234, lines[1234].replace(",", ",abc", 2).replace(",abc", ",", 1)),
          ["vp_trees.csv.gz:1235", "field 'range_m'", "'abc", "not a number"]),
+        ("vp_trees.csv.gz", lambda lines: lines.__setitem__(1234, "110,45.319,19.25,1e300,0.17"),
+         ["vp_trees.csv.gz:1235", "field 'bearing_rad'"]),
         ("vp_odometry.csv.gz", lambda lines: lines.__setitem__(500, "1.0,0,0"),
          ["vp_odometry.csv.gz:501", "field 't_s'", "backwards"]),
         ("vp_scans.csv.gz", lambda lines: lines.__setitem__(7, lines[7] + ",9"),

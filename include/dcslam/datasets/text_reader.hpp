@@ -7,6 +7,8 @@
 #include <string>
 #include <vector>
 
+#include "dcslam/core/errors.hpp"
+
 namespace dcslam {
 
 // Reads a plain or gzip text file (detected from its content, not its name) one line at a
@@ -56,6 +58,10 @@ std::string excerpt(const std::string& text);
 // field '<field>': '<excerpt>' is not a number" otherwise (also for inf, nan, hex floats and
 // values beyond double's range, which no dataset field may hold).
 double parse_number(const std::string& text, const std::string& where, const std::string& field);
+// parse_number's test without the message: false where it would throw (value then unspecified).
+bool try_parse_number(const std::string& text, double& value);
+// The ParseError parse_number throws for `text`.
+ParseError not_a_number(const std::string& text, const std::string& where, const std::string& field);
 // Same for an integer field: also rejects fractional values.
 std::int64_t parse_integer(const std::string& text, const std::string& where,
                            const std::string& field);
