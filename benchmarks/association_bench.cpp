@@ -172,7 +172,7 @@ std::vector<EkfAssociationBenchRow> benchmark_ekf_association(const std::vector<
       }
       row.measurements += static_cast<double>(z.rows());
       auto start = std::chrono::steady_clock::now();
-      association.associate(map, z, noise, pairing, counters);
+      association.associate(map, z, noise, {}, pairing, counters);
       associate_seconds.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
       start = std::chrono::steady_clock::now();
       association.map_updated(map);

@@ -63,6 +63,8 @@ Options of sim, scaling, vp and isam:
   --join-iterations K  linearisation points per join (1: one-shot)  [10]
   --join-feature-sigma S  SlamConfig.join_feature_sigma [m]   [0; vp: 0.1]
   --keep-local-map-poses 0|1  D&C keeps the robot at every local map's end  [0]
+  --new-feature-beside-tentative 0|1  SlamConfig.new_feature_beside_tentative: unpaired beside
+                       tentative features only starts a feature on probation  [1]
   --tree-relinearisation N  SlamConfig.tree_relinearisation: passes in estimate()  [0]
   --weak-join-pairings N  SlamConfig.weak_join_pairings (0: off)   [30]
   --join-merge-max-leaves N  SlamConfig.join_merge_max_leaves (0: off)  [0]
@@ -344,6 +346,11 @@ void apply_run_options(const Args& args, SlamConfig& config) {
     throw InvalidArgument("dcslam_bench: --keep-local-map-poses expects 0 or 1");
   }
   config.keep_local_map_poses = keep_poses == 1;
+  const long beside_tentative = number(args, "new-feature-beside-tentative", 1);
+  if (beside_tentative != 0 && beside_tentative != 1) {
+    throw InvalidArgument("dcslam_bench: --new-feature-beside-tentative expects 0 or 1");
+  }
+  config.new_feature_beside_tentative = beside_tentative == 1;
   const std::string joins = get(args, "joins", "amortized");
   if (joins != "immediate" && joins != "amortized" && joins != "threaded") {
     throw InvalidArgument("dcslam_bench: --joins must be immediate, amortized or threaded");
@@ -742,7 +749,7 @@ int command_ekf_association(const Args& args) {
 // than silently ignored (e.g. --gate given to vp, whose preset sets it).
 void refuse_unknown_options(const std::string& command, const Args& args) {
   const std::vector<std::string> run = {"filter", "joins", "local-map-features", "join-iterations",
-                                        "join-feature-sigma", "keep-local-map-poses",
+                                        "join-feature-sigma", "keep-local-map-poses", "new-feature-beside-tentative",
                                         "tree-relinearisation", "weak-join-pairings", "join-merge-max-leaves",
                                         "chunked-jcbb-min-overlap", "join-rival-margin", "seed", "json"};
   const std::vector<std::string> simulated = {"trajectory", "association", "clutter", "odometry-noise-scale",

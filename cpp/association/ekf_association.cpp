@@ -280,8 +280,8 @@ void EkfAssociation::fill_likelihood(const MeasurementsRef& z, const ScanNoise& 
 }
 
 void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
-                               const ScanNoise& R, std::vector<Index>& pairing,
-                               std::map<std::string, double>& counters) {
+                               const ScanNoise& R, const std::vector<std::uint8_t>& tentative,
+                               std::vector<Index>& pairing, std::map<std::string, double>& counters) {
   const auto m = static_cast<std::size_t>(z.rows());
   pairing.assign(m, kNewFeature);
   if (m == 0 || map.num_features() == 0) return;
@@ -351,6 +351,14 @@ void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
       // one, so it is started only when the decision was clear.
       const bool clear = likelihood && clearly_unexplained(static_cast<int>(i), chosen_score, counters);
       pairing[i] = clear ? kNewFeature : kRejected;
+      // A tentative feature is not a landmark yet (most are clutter): beside tentative ones
+      // only, a close decision starts a feature, on probation.
+      if (!clear && config_.new_feature_beside_tentative && !tentative.empty() &&
+          std::all_of(candidates_[i].begin(), candidates_[i].end(),
+                      [&](int feature) { return tentative[static_cast<std::size_t>(feature)] != 0; })) {
+        pairing[i] = kNewFeatureOnProbation;
+        counters["started_beside_tentative"] += 1.0;
+      }
     }
   }
 }

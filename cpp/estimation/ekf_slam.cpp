@@ -215,12 +215,14 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
       track.last_seen_step = step_;
       touched_.push_back(decision);
       ++step.paired;
-    } else if (decision == kNewFeature) {
+    } else if (decision == kNewFeature || decision == kNewFeatureOnProbation) {
       const std::int64_t id = landmark_ids ? (*landmark_ids)[i] : next_fresh_id_++;
       const Index index =
           add_feature(z.row(static_cast<Index>(i)).transpose(), noise_[i], id);
       index_of_id_[id] = index;
-      tracks_.push_back(Track{1, step_, step_, {}});
+      // On probation, the first sighting does not count: it needs min_sightings more, and the
+      // merges' "seen without the other" counts leave out the scan that was a close call.
+      tracks_.push_back(Track{decision == kNewFeatureOnProbation ? 0 : 1, step_, step_, {}});
       if (association_) association_->feature_added(map_, index);
       touched_.push_back(index);
       assigned[i] = id;
@@ -241,7 +243,11 @@ std::vector<std::int64_t> EkfSlam::update(const MeasurementsRef& z, const std::v
 void EkfSlam::associate(const MeasurementsRef& z, const ScanNoise& R,
                         const std::vector<std::int64_t>* landmark_ids) {
   if (association_) {
-    association_->associate(map_, z, R, pairing_, stats_.counters);
+    tentative_flags_.clear();
+    if (config_.new_feature_beside_tentative && tentative_policy()) {
+      for (const Track& track : tracks_) tentative_flags_.push_back(track.sightings < config_.min_sightings);
+    }
+    association_->associate(map_, z, R, tentative_flags_, pairing_, stats_.counters);
     return;
   }
   pairing_.assign(static_cast<std::size_t>(z.rows()), kRejected);

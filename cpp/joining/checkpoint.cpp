@@ -151,7 +151,7 @@ class Reader {
 
 // A field added to SlamConfig must be added here too (and kCheckpointVersion raised): the size
 // check below fails the build until it is.
-static_assert(sizeof(SlamConfig) == 200, "SlamConfig changed: update save_config/load_config");
+static_assert(sizeof(SlamConfig) == 208, "SlamConfig changed: update save_config/load_config");
 
 void save_config(Writer& out, const SlamConfig& c) {
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(c.observation));
@@ -160,6 +160,7 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod(c.gate_confidence);
   out.pod(c.unexplained_density);
   out.pod(c.new_feature_margin);
+  out.pod<std::uint8_t>(c.new_feature_beside_tentative);
   out.pod(c.jcbb_max_nodes);
   out.pod(c.min_sightings);
   out.pod(c.tentative_window);
@@ -202,6 +203,7 @@ SlamConfig load_config(Reader& in) {
   c.gate_confidence = in.pod<double>();
   c.unexplained_density = in.pod<double>();
   c.new_feature_margin = in.pod<double>();
+  c.new_feature_beside_tentative = in.flag();
   c.jcbb_max_nodes = in.pod<std::int64_t>();
   c.min_sightings = in.pod<int>();
   c.tentative_window = in.pod<int>();

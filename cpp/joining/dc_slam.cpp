@@ -42,7 +42,7 @@ std::size_t fold_position(int join_index) { return static_cast<std::size_t>(-1 -
 
 // The local maps' EKF counters that DCSlam's stats add up over all local maps.
 constexpr const char* kLocalCounters[] = {"features_merged", "tentative_removed", "jcbb_nodes", "jcbb_bound_hits",
-                                         "unexplained_started"};
+                                         "unexplained_started", "started_beside_tentative"};
 
 double counter(const std::map<std::string, double>& counters, const char* name) {
   const auto found = counters.find(name);

@@ -75,6 +75,13 @@ class SlamConfig:
             this natural-log likelihood ratio (default 5, about 150 to 1); otherwise it is
             rejected (id -1). ``math.inf``: always rejected (docs/data_association.md,
             "Unexplained measurements beside mapped features").
+        new_feature_beside_tentative: ``"nn"``/``"jcbb"`` with ``min_sightings > 1``: a
+            measurement left unpaired whose compatible features are all still tentative
+            starts a feature on probation instead of being rejected (whatever
+            ``new_feature_margin`` says): its first sighting, a close call, does not count, so
+            ``min_sightings`` more confirm it. Most tentative features are clutter; a rejection
+            beside them loses a landmark's first sighting. ``False``: rejected, the rule before
+            (docs/data_association.md, "Unpaired beside tentative features only").
         jcbb_max_nodes: ``"jcbb"``: interpretation-tree nodes per scan (>= 1) before JCBB
             returns the best hypothesis found so far (counted in ``stats.counters``
             ``"jcbb_bound_hits"``).
@@ -195,6 +202,7 @@ class SlamConfig:
     gate_confidence: float = 0.999
     unexplained_density: float = 0.02
     new_feature_margin: float = 5.0
+    new_feature_beside_tentative: bool = True
     jcbb_max_nodes: int = 20000
     min_sightings: int = 2
     tentative_window: int = 5

@@ -346,8 +346,9 @@ TEST(DcSlam, WeakJoinsDecideAlikeInEveryMode) {
     config.association = Association::Jcbb;
     config.join_association = JoinAssociation::Rjc;
     // The run traced when this test was written: its local maps reject the measurements
-    // they leave unexplained beside mapped features, as they did then.
+    // they leave unexplained beside mapped or tentative features, as they did then.
     config.new_feature_margin = std::numeric_limits<double>::infinity();
+    config.new_feature_beside_tentative = false;
     config.amortize = mode == Mode::Amortized;
     config.threaded_joins = mode == Mode::Threaded;
     DCSlam dc(config);

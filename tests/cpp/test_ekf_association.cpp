@@ -177,7 +177,7 @@ TEST_P(EkfAssociationTest, CandidateSearchNeverMissesAGatePassingFeature) {
     // A full association first: it resizes the hash cells to the scan's radii.
     std::vector<Index> pairing;
     std::map<std::string, double> counters;
-    association.associate(map, z, ScanNoise(R, static_cast<std::size_t>(z.rows())), pairing, counters);
+    association.associate(map, z, ScanNoise(R, static_cast<std::size_t>(z.rows())), {}, pairing, counters);
     std::vector<int> found;
     for (int i = 0; i < 8; ++i) {
       association.candidates(map, z.row(i).transpose(), R[static_cast<std::size_t>(i)], found);
@@ -219,11 +219,12 @@ CandidateLists gated_candidates(const GaussianMap& map, ObservationModel observa
 
 // The filter's association of one scan against a map whose features it is told of.
 std::vector<Index> filter_pairing(const SlamConfig& config, const GaussianMap& map, const MeasurementMatrix& z,
-                                  const std::vector<Mat2>& R, std::map<std::string, double>& counters) {
+                                  const std::vector<Mat2>& R, std::map<std::string, double>& counters,
+                                  const std::vector<std::uint8_t>& tentative = {}) {
   EkfAssociation association(config);
   for (Index k = 0; k < map.num_features(); ++k) association.feature_added(map, k);
   std::vector<Index> pairing;
-  association.associate(map, z, ScanNoise(R, static_cast<std::size_t>(z.rows())), pairing, counters);
+  association.associate(map, z, ScanNoise(R, static_cast<std::size_t>(z.rows())), tentative, pairing, counters);
   return pairing;
 }
 
@@ -325,18 +326,23 @@ LikelihoodEnumeration brute_force_likelihood(const CandidateLists& candidates, c
 // for range-bearing), as exhaustive enumeration finds it. A measurement it leaves unpaired
 // although it has candidates starts a feature exactly when every hypothesis that pairs it is
 // less likely by more than new_feature_margin, and is rejected otherwise (margin infinity:
-// always rejected).
+// always rejected), unless every feature it is compatible with is tentative: it then starts a
+// feature on probation (SlamConfig::new_feature_beside_tentative; here half the features,
+// drawn, are tentative).
 TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowdedScans) {
   const ObservationModel observation = GetParam();
+  for (const bool with_tentative : {false, true})
   for (const double margin : {std::numeric_limits<double>::infinity(), 1.0}) {
     SlamConfig config = jcbb_config(observation);
     config.unexplained_density = observation == ObservationModel::RangeBearing ? 2.0 : 0.3;
     config.new_feature_margin = margin;
     const double gate = chi2_quantile(2, config.gate_confidence);
     std::mt19937_64 rng(15);
+    std::mt19937_64 tentative_rng(16);
     std::uniform_real_distribution<double> uniform(0.0, 1.0);
     int declined = 0;  // measurements with candidates that the likelihood leaves unpaired
     int started = 0;   // of those, the ones that start a feature
+    int on_probation = 0;  // of those, the ones beside tentative features only
     for (int trial = 0; trial < 60; ++trial) {
       const GaussianMap map = random_map(rng, 7, 1.5, 0.2, 0.05, 0.25);
       const int m = 5;
@@ -350,14 +356,19 @@ TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowd
         const double jacobian = observation == ObservationModel::RangeBearing ? std::abs(zi(0)) : 1.0;
         log_lambda.push_back(std::log(config.unexplained_density * jacobian));
       }
+      std::vector<std::uint8_t> tentative;
+      if (with_tentative) {
+        for (Index j = 0; j < map.num_features(); ++j) tentative.push_back(tentative_rng() % 2 == 0);
+      }
       std::map<std::string, double> counters;
-      const std::vector<Index> pairing = filter_pairing(config, map, z, R, counters);
+      const std::vector<Index> pairing = filter_pairing(config, map, z, R, counters, tentative);
 
       const CandidateLists candidates = gated_candidates(map, observation, z, R, gate);
       EkfPairingModel model;
       prepare_every_feature(model, map, observation, z, R);
       const LikelihoodEnumeration oracle =
           brute_force_likelihood(candidates, model, config.gate_confidence, log_lambda);
+      int beside_tentative = 0;
       for (int i = 0; i < m; ++i) {
         const auto k = static_cast<std::size_t>(i);
         Index expected = expected_pairing(oracle.best, candidates, i);
@@ -369,16 +380,27 @@ TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowd
           if (rival_margin > margin) {
             expected = kNewFeature;
             ++started;
+          } else if (with_tentative && std::all_of(candidates[k].begin(), candidates[k].end(),
+                                                   [&](int j) { return tentative[static_cast<std::size_t>(j)] != 0; })) {
+            expected = kNewFeatureOnProbation;
+            ++on_probation;
+            ++beside_tentative;
           }
         }
         EXPECT_EQ(pairing[k], expected) << "margin " << margin << " trial " << trial << " measurement " << i;
       }
+      EXPECT_EQ(counters["started_beside_tentative"], beside_tentative);
       EXPECT_EQ(counters["jcbb_bound_hits"], 0.0);
       EXPECT_EQ(counters["unexplained_started"], 0.0 + std::count(pairing.begin(), pairing.end(), kNewFeature) -
                                                       std::count_if(candidates.begin(), candidates.end(),
                                                                     [](const auto& c) { return c.empty(); }));
     }
     EXPECT_GT(declined, 10);
+    if (with_tentative) {
+      EXPECT_GT(on_probation, 3);
+    } else {
+      EXPECT_EQ(on_probation, 0);
+    }
     if (std::isfinite(margin)) {
       // Both outcomes occur on these scans.
       EXPECT_GT(started, 3);
@@ -436,6 +458,63 @@ TEST(EkfSlamTentative, UnconfirmedFeaturesAreRemovedAndResolveToMinusOne) {
   known.update(MeasurementMatrix(0, 2), R, &none);
   known.prune_tentative();
   EXPECT_EQ(known.map().num_features(), 2);
+}
+
+// A measurement left unpaired beside a tentative feature only starts a feature on probation
+// (SlamConfig::new_feature_beside_tentative): confirmed at min_sightings + 1 sightings, where a
+// feature started as usual is at min_sightings; with the rule off it is rejected. Beside a
+// confirmed feature it is rejected either way.
+TEST(EkfSlamTentative, UnpairedBesideTentativeFeaturesStartsAFeatureOnProbation) {
+  const std::vector<Mat2> R{Mat2::Identity() * 1e-4};
+  const Mat3 Q = Mat3::Identity() * 1e-6;
+  const auto scan = [](std::initializer_list<Vec2> points) {
+    MeasurementMatrix z(static_cast<Eigen::Index>(points.size()), 2);
+    Eigen::Index row = 0;
+    for (const Vec2& p : points) z.row(row++) = p.transpose();
+    return z;
+  };
+  const auto tentative_ids = [](const EkfSlam& slam) {
+    std::vector<std::int64_t> ids;
+    for (const auto& track : slam.tentative_features()) ids.push_back(track.id);
+    std::sort(ids.begin(), ids.end());
+    return ids;
+  };
+  for (const bool rule : {true, false}) {
+    SlamConfig config;
+    config.observation = ObservationModel::Point;
+    config.association = Association::Jcbb;
+    config.unexplained_density = 0.0;  // every unpaired measurement with a candidate is a close call
+    config.new_feature_beside_tentative = rule;
+    EkfSlam slam(config);
+    slam.predict(Vec3::Zero(), Q);
+    const std::int64_t a = slam.update(scan({Vec2(2.0, 0.0)}), R, nullptr)[0];
+    // Both within A's gate; JCBB pairs one, the farther is left unpaired beside A, tentative.
+    slam.predict(Vec3::Zero(), Q);
+    const auto second = slam.update(scan({Vec2(2.0, 0.0), Vec2(2.045, 0.0)}), {R[0], R[0]}, nullptr);
+    EXPECT_EQ(second[0], a);
+    if (!rule) {
+      EXPECT_EQ(second[1], -1);
+      EXPECT_EQ(slam.stats().counters.count("started_beside_tentative"), 0u);
+      continue;
+    }
+    const std::int64_t b = second[1];
+    ASSERT_GE(b, 0);
+    EXPECT_NE(b, a);
+    EXPECT_EQ(slam.stats().counters.at("started_beside_tentative"), 1.0);
+    EXPECT_EQ(tentative_ids(slam), (std::vector<std::int64_t>{b}));  // A confirmed at two sightings
+    slam.predict(Vec3::Zero(), Q);
+    EXPECT_EQ(slam.update(scan({Vec2(2.045, 0.0)}), R, nullptr)[0], b);
+    EXPECT_EQ(tentative_ids(slam), (std::vector<std::int64_t>{b}));  // two sightings: still on probation
+    slam.predict(Vec3::Zero(), Q);
+    EXPECT_EQ(slam.update(scan({Vec2(2.045, 0.0)}), R, nullptr)[0], b);
+    EXPECT_TRUE(tentative_ids(slam).empty());
+    // Beside a confirmed feature only (A; B is out of both gates) a close call is rejected.
+    slam.predict(Vec3::Zero(), Q);
+    const auto third = slam.update(scan({Vec2(2.0, 0.0), Vec2(1.99, 0.0)}), {R[0], R[0]}, nullptr);
+    EXPECT_EQ(third[0], a);
+    EXPECT_EQ(third[1], -1);
+    EXPECT_EQ(slam.stats().counters.at("started_beside_tentative"), 1.0);
+  }
 }
 
 // D&C: a local map is closed without its tentative features, whose ids resolve to -1.

@@ -22,7 +22,7 @@ from dcslam import evaluation
 from dc_runs import pickled, run_dc
 
 BASE = dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=14, new_feature_margin=math.inf,
-                         gate_confidence=0.99)
+                         gate_confidence=0.99, new_feature_beside_tentative=False)
 ONE_GATE = dataclasses.replace(BASE, large_overlap_confidence=BASE.gate_confidence)
 
 

@@ -33,8 +33,10 @@ def test_the_default():
 
 @pytest.mark.parametrize("filter_name", ["ekf", "dc"])
 def test_clear_decisions_start_features_and_recover_recall(filter_name):
-    default, default_counters = scores(filter_name, dcslam.SlamConfig(seed=0))
-    rejecting, rejecting_counters = scores(filter_name, dcslam.SlamConfig(seed=0, new_feature_margin=math.inf))
+    # The margin alone: both reject beside tentative features, as when it was measured.
+    default, default_counters = scores(filter_name, dcslam.SlamConfig(seed=0, new_feature_beside_tentative=False))
+    rejecting, rejecting_counters = scores(filter_name, dcslam.SlamConfig(seed=0, new_feature_margin=math.inf,
+                                                                          new_feature_beside_tentative=False))
     assert default_counters["unexplained_started"] > 50
     assert rejecting_counters.get("unexplained_started", 0) == 0
     assert default.recall_lost_to_rejected < rejecting.recall_lost_to_rejected - 0.005

@@ -23,6 +23,9 @@ namespace dcslam {
 // Outcome of data association for one measurement: a feature index (>= 0) or one of these.
 inline constexpr Eigen::Index kNewFeature = -1;
 inline constexpr Eigen::Index kRejected = -2;
+// A new feature on probation (SlamConfig::new_feature_beside_tentative): the measurement was
+// compatible with tentative features only, and left unpaired.
+inline constexpr Eigen::Index kNewFeatureOnProbation = -3;
 
 // Pairing (i, j) = measurement i explained by feature j of `map`. With H_a = [H_R 0 .. H_f ..]
 // the Jacobian of h(x_R, f_j) at the means:
@@ -95,11 +98,13 @@ class EkfAssociation {
 
   explicit EkfAssociation(const SlamConfig& config);
 
-  // Fills pairing (one entry per measurement: feature index, kNewFeature or kRejected).
-  // Counters "jcbb_nodes", "jcbb_bound_hits" and "unexplained_started" are added to
-  // `counters`.
+  // Fills pairing (one entry per measurement: feature index, kNewFeature, kRejected or
+  // kNewFeatureOnProbation). `tentative` (empty, or one flag per feature) marks the features
+  // still tentative. Counters "jcbb_nodes", "jcbb_bound_hits", "unexplained_started" and
+  // "started_beside_tentative" are added to `counters`.
   void associate(const GaussianMap& map, const MeasurementsRef& z, const ScanNoise& R,
-                 std::vector<Index>& pairing, std::map<std::string, double>& counters);
+                 const std::vector<std::uint8_t>& tentative, std::vector<Index>& pairing,
+                 std::map<std::string, double>& counters);
 
   // Feature indices of the hash entries whose gate region may contain a feature paired with
   // z (a superset of the gate-passing ones; exposed for tests).

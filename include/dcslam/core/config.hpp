@@ -44,6 +44,16 @@ struct SlamConfig {
   // Measured on the revisit scenes (docs/data_association.md, "Unexplained measurements
   // beside mapped features").
   double new_feature_margin = 5.0;
+  // "nn"/"jcbb" with tentative features (min_sightings > 1): a measurement left unpaired whose
+  // compatible features are all still tentative starts a feature on probation instead of being
+  // rejected, whatever new_feature_margin says. Most tentative features are clutter, and a
+  // rejection beside them loses a landmark's first sighting, or, in D&C's local maps, which
+  // start afresh every ~30 features, a sighting again. On probation the first sighting, a close
+  // call, does not count: min_sightings more confirm the feature, and the duplicate merges'
+  // scan counts leave it out (counted, MR.CLAM's D&C map merged such features wrongly;
+  // docs/data_association.md, "Unpaired beside tentative features only"). false: rejected,
+  // the rule before.
+  bool new_feature_beside_tentative = true;
   // "jcbb": interpretation-tree nodes per scan before JCBB returns its best hypothesis so far.
   std::int64_t jcbb_max_nodes = 20000;
   // Spurious measurements ("nn"/"jcbb" only; docs/data_association.md): a new feature stays

@@ -85,8 +85,8 @@ class EkfSlam : public SlamFilter {
 
  private:
   friend struct CheckpointAccess;  // checkpoint.cpp saves and restores the state below
-  // Fills pairing_ (one entry per measurement: feature index, kNewFeature or kRejected).
-  // The seam for data association: "known" looks ids up; "nn"/"jcbb" run EkfAssociation.
+  // Fills pairing_ (one entry per measurement: feature index, kNewFeature, kRejected or
+  // kNewFeatureOnProbation). The seam for data association: "known" looks ids up; "nn"/"jcbb" run EkfAssociation.
   void associate(const MeasurementsRef& z, const ScanNoise& R,
                  const std::vector<std::int64_t>* landmark_ids);
   void associate_known(const std::vector<std::int64_t>& landmark_ids);
@@ -124,7 +124,9 @@ class EkfSlam : public SlamFilter {
   RunStats stats_;
   std::optional<EkfAssociation> association_;  // "nn" and "jcbb" only
 
-  // Per feature (state order): how often it has been seen and the step it was last seen in.
+  // Per feature (state order): how often it has been seen (its first sighting not counted when
+  // it was started on probation, SlamConfig::new_feature_beside_tentative: a close call) and the
+  // step it was last seen in.
   struct Track {
     int sightings = 0;
     std::int64_t first_seen_step = 0;
@@ -136,6 +138,7 @@ class EkfSlam : public SlamFilter {
     std::vector<std::int64_t> seen_with;
   };
   std::vector<Track> tracks_;
+  std::vector<std::uint8_t> tentative_flags_;  // per feature, for the association; reused
   std::int64_t step_ = 0;  // predicts so far
   std::int64_t keep_until_step_ = -1;
   std::unordered_set<std::int64_t> removed_ids_;

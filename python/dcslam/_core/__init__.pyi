@@ -18,6 +18,7 @@ class SlamConfig:
     association: str
     join_association: str
     keep_local_map_poses: bool
+    new_feature_beside_tentative: bool
     observation: str
     threaded_joins: bool
     def __init__(self) -> None:
