@@ -64,7 +64,7 @@ Options of sim, scaling, vp and isam:
   --join-feature-sigma S  SlamConfig.join_feature_sigma [m]   [0; vp: 0.1]
   --keep-local-map-poses 0|1  D&C keeps the robot at every local map's end  [0]
   --new-feature-beside-tentative 0|1  SlamConfig.new_feature_beside_tentative: unpaired beside
-                       tentative features only starts a feature on probation  [1]
+                       tentative features only starts a feature on probation  [0]
   --tree-relinearisation N  SlamConfig.tree_relinearisation: passes in estimate()  [0]
   --weak-join-pairings N  SlamConfig.weak_join_pairings (0: off)   [30]
   --join-merge-max-leaves N  SlamConfig.join_merge_max_leaves (0: off)  [0]
@@ -346,7 +346,7 @@ void apply_run_options(const Args& args, SlamConfig& config) {
     throw InvalidArgument("dcslam_bench: --keep-local-map-poses expects 0 or 1");
   }
   config.keep_local_map_poses = keep_poses == 1;
-  const long beside_tentative = number(args, "new-feature-beside-tentative", 1);
+  const long beside_tentative = number(args, "new-feature-beside-tentative", 0);
   if (beside_tentative != 0 && beside_tentative != 1) {
     throw InvalidArgument("dcslam_bench: --new-feature-beside-tentative expects 0 or 1");
   }

@@ -336,6 +336,7 @@ TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowd
     SlamConfig config = jcbb_config(observation);
     config.unexplained_density = observation == ObservationModel::RangeBearing ? 2.0 : 0.3;
     config.new_feature_margin = margin;
+    config.new_feature_beside_tentative = with_tentative;
     const double gate = chi2_quantile(2, config.gate_confidence);
     std::mt19937_64 rng(15);
     std::mt19937_64 tentative_rng(16);

@@ -29,7 +29,7 @@ def scores(sim, filter_cls, rule):
 
 
 def test_the_default():
-    assert dcslam.SlamConfig().new_feature_beside_tentative is True
+    assert dcslam.SlamConfig().new_feature_beside_tentative is False
 
 
 @pytest.mark.parametrize("filter_cls", [dcslam.EkfSlam, dcslam.DCSlam])
