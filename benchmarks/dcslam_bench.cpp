@@ -128,6 +128,13 @@ long number(const Args& args, const std::string& key, long fallback) {
   return parse_integer(get(args, key, std::to_string(fallback)), key);
 }
 
+// A 0|1 option, e.g. --keep-local-map-poses 1.
+bool switch_option(const Args& args, const std::string& key, bool fallback) {
+  const long value = number(args, key, fallback ? 1 : 0);
+  if (value != 0 && value != 1) throw InvalidArgument("dcslam_bench: --" + key + " expects 0 or 1");
+  return value == 1;
+}
+
 // A comma-separated list of integers, e.g. --sizes 100,200,400.
 std::vector<long> number_list(const Args& args, const std::string& key, const std::string& fallback) {
   std::vector<long> values;
@@ -341,16 +348,8 @@ void apply_run_options(const Args& args, SlamConfig& config) {
   } else if (!rival_margin.empty()) {
     config.join_rival_margin = static_cast<int>(number(args, "join-rival-margin", 0));
   }
-  const long keep_poses = number(args, "keep-local-map-poses", 0);
-  if (keep_poses != 0 && keep_poses != 1) {
-    throw InvalidArgument("dcslam_bench: --keep-local-map-poses expects 0 or 1");
-  }
-  config.keep_local_map_poses = keep_poses == 1;
-  const long beside_tentative = number(args, "new-feature-beside-tentative", 0);
-  if (beside_tentative != 0 && beside_tentative != 1) {
-    throw InvalidArgument("dcslam_bench: --new-feature-beside-tentative expects 0 or 1");
-  }
-  config.new_feature_beside_tentative = beside_tentative == 1;
+  config.keep_local_map_poses = switch_option(args, "keep-local-map-poses", false);
+  config.new_feature_beside_tentative = switch_option(args, "new-feature-beside-tentative", false);
   const std::string joins = get(args, "joins", "amortized");
   if (joins != "immediate" && joins != "amortized" && joins != "threaded") {
     throw InvalidArgument("dcslam_bench: --joins must be immediate, amortized or threaded");

@@ -349,15 +349,17 @@ void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
       // Compatible with a feature that the hypothesis gave to another measurement (or left
       // out): a new feature here would duplicate that landmark if the decision was a close
       // one, so it is started only when the decision was clear.
-      const bool clear = likelihood && clearly_unexplained(static_cast<int>(i), chosen_score, counters);
-      pairing[i] = clear ? kNewFeature : kRejected;
       // A tentative feature is not a landmark yet (most are clutter): beside tentative ones
       // only, a close decision starts a feature, on probation.
-      if (!clear && config_.new_feature_beside_tentative && !tentative.empty() &&
-          std::all_of(candidates_[i].begin(), candidates_[i].end(),
-                      [&](int feature) { return tentative[static_cast<std::size_t>(feature)] != 0; })) {
+      if (likelihood && clearly_unexplained(static_cast<int>(i), chosen_score, counters)) {
+        pairing[i] = kNewFeature;
+      } else if (!tentative.empty() &&
+                 std::all_of(candidates_[i].begin(), candidates_[i].end(),
+                             [&](int feature) { return tentative[static_cast<std::size_t>(feature)] != 0; })) {
         pairing[i] = kNewFeatureOnProbation;
         counters["started_beside_tentative"] += 1.0;
+      } else {
+        pairing[i] = kRejected;
       }
     }
   }
