@@ -2,7 +2,9 @@
 the same simulations without ids (10 % clutter), once as configured (A) and once with the
 given SlamConfig overrides (B), and reports per scene the means of both, the paired
 difference B - A of recall and precision with its standard error, and how many seeds went up
-or down. A single change moves a 10-seed mean by up to +-0.03 through seed chaos alone
+or down; then, per side, the duplicated landmarks a run (mean), the runs whose final robot
+lies within its 99 % ellipse (NEES <= 11.34), and the medians of the final robot error and
+NEES. A single change moves a 10-seed mean by up to +-0.03 through seed chaos alone
 (docs/data_association.md), which a paired difference over 20 or more seeds sees through.
 With ``--rjc-seeds K`` each scene is run with K draws of RJC's tries (``SlamConfig.seed`` =
 seed + 1000 k, as ``benchmarks/revisit_association.py --rjc-seeds`` runs them) on both sides,
@@ -28,7 +30,7 @@ import dcslam
 
 # The revisit benchmark's runner and its overrides, so that both score a run the same way.
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
-from revisit_association import check_run_counts, config_seeds, parse_overrides, run_one, simulation  # noqa: E402
+from revisit_association import TARGETS, check_run_counts, config_seeds, parse_overrides, run_one, simulation  # noqa: E402
 
 DEFAULT_SCENES = "small_loop_laps,loop_both_ways,lawn_overlap"
 
@@ -61,15 +63,17 @@ def main() -> None:
           f"{'P A':>6s} {'P B':>6s} {'dP':>8s} {'+-':>7s}")
     rows = []
     for name in args.scenarios.split(","):
-        pairs = []
+        pairs, robots = [], []
         for seed in range(args.seeds):
             sim = simulation(name, seed)
             for config_seed in config_seeds(args.filter, seed, args.rjc_seeds):
-                a = run_one(args.filter, sim, dataclasses.replace(config_a, seed=config_seed))[0].association
-                b = run_one(args.filter, sim, dataclasses.replace(config_b, seed=config_seed))[0].association
-                pairs.append((a, b))
-                rows.append(dict(scenario=name, seed=seed, config_seed=config_seed, a=dataclasses.asdict(a),
-                                 b=dataclasses.asdict(b)))
+                a = run_one(args.filter, sim, dataclasses.replace(config_a, seed=config_seed))[0]
+                b = run_one(args.filter, sim, dataclasses.replace(config_b, seed=config_seed))[0]
+                pairs.append((a.association, b.association))
+                robots.append((a.robot, b.robot))
+                rows.append(dict(scenario=name, seed=seed, config_seed=config_seed, a=dataclasses.asdict(a.association),
+                                 b=dataclasses.asdict(b.association), robot_a=dataclasses.asdict(a.robot),
+                                 robot_b=dataclasses.asdict(b.robot)))
         recall = np.array([[a.pairwise_recall, b.pairwise_recall] for a, b in pairs])
         precision = np.array([[a.pairwise_precision, b.pairwise_precision] for a, b in pairs])
         d_recall, d_precision = recall[:, 1] - recall[:, 0], precision[:, 1] - precision[:, 0]
@@ -77,6 +81,12 @@ def main() -> None:
               f"{standard_error(d_recall):6.3f} {int((d_recall > 0).sum()):3d} {int((d_recall < 0).sum()):4d} "
               f"{precision[:, 0].mean():6.3f} {precision[:, 1].mean():6.3f} {d_precision.mean():+8.4f} "
               f"{standard_error(d_precision):7.4f}", flush=True)
+        for side, k in (("A", 0), ("B", 1)):
+            robot = [r[k] for r in robots]
+            nees_ok = sum(r.nees <= TARGETS["nees"] for r in robot)
+            print(f"{'':16s} {side}: duplicated landmarks {np.mean([p[k].duplicated_landmarks for p in pairs]):.1f} a run, "
+                  f"NEES ok {nees_ok}/{len(robot)}, robot error median {np.median([r.position_error for r in robot]):.2f} m, "
+                  f"NEES median {np.median([r.nees for r in robot]):.1f}", flush=True)
     if args.json:
         pathlib.Path(args.json).write_text(json.dumps(
             dict(filter=args.filter, a=dataclasses.asdict(config_a), b=dataclasses.asdict(config_b), runs=rows),

@@ -130,9 +130,11 @@ def test_paired_association_is_zero_for_no_change_and_sees_a_change(tmp_path):
     printed = run_study("paired_association.py", "--seeds", 2, "--scenarios", "small_loop_laps",
                         "--b", "merge_radius=0", "--json", changed).stdout
     assert "small_loop_laps" in printed
+    assert "A: duplicated landmarks" in printed and "B: duplicated landmarks" in printed and "NEES ok" in printed
     runs = json.loads(same.read_text())["runs"]
     assert [run["seed"] for run in runs] == [0, 1]
     assert all(run["a"] == run["b"] for run in runs)  # the same seeds and simulations on both sides
+    assert all(run["robot_a"] == run["robot_b"] for run in runs)
     saved = json.loads(changed.read_text())
     assert saved["b"]["merge_radius"] == 0 and saved["a"]["merge_radius"] == default_radius
     assert any(run["a"] != run["b"] for run in saved["runs"])
