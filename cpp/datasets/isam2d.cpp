@@ -14,17 +14,12 @@ const char* const kOdometryFields[] = {"tag", "i", "j", "dx", "dy", "dtheta",
                                        "c11", "c12", "c13", "c22", "c23", "c33"};
 const char* const kLandmarkFields[] = {"tag", "i", "l", "x", "y", "c11", "c12", "c22"};
 
-// Refuses a value beyond the filter's bounds (input_checks.hpp), naming its field.
-void require_within(const std::string& fault, const std::string& where, const char* field) {
-  if (!fault.empty()) throw ParseError(where + ": field '" + field + "': " + fault);
-}
-
 std::int64_t parse_id(const std::string& token, const std::string& where, const char* field,
                       const char* what) {
   const std::int64_t id = parse_integer(token, where, field);
   if (id < 0)
-    throw ParseError(where + ": field '" + field + "': " + std::to_string(id) + " is negative (" +
-                     what + " ids are >= 0)");
+    throw field_error(where, field, std::to_string(id) + " is negative (" +
+                      what + " ids are >= 0)");
   return id;
 }
 
@@ -49,6 +44,7 @@ Isam2dData read_isam2d(const std::string& path) {
     const std::vector<std::string> tokens = split_whitespace(line);
     if (tokens.empty() || tokens.front().front() == '#') continue;
     const std::string where = reader.where();
+    const auto at_line = [&] { return where; };
     const std::string& tag = tokens.front();
     if (tag == "ODOMETRY") {
       if (tokens.size() != 12)
@@ -58,18 +54,18 @@ Isam2dData read_isam2d(const std::string& path) {
       const std::int64_t to = parse_id(tokens[2], where, "j", "pose");
       double values[9];
       for (int f = 0; f < 9; ++f) values[f] = parse_number(tokens[3 + f], where, kOdometryFields[3 + f]);
-      require_within(distance_fault(values[0]), where, "dx");
-      require_within(distance_fault(values[1]), where, "dy");
-      require_within(angle_fault(values[2]), where, "dtheta");
+      require_no_fault(distance_fault(values[0]), at_line, "dx");
+      require_no_fault(distance_fault(values[1]), at_line, "dy");
+      require_no_fault(angle_fault(values[2]), at_line, "dtheta");
       for (int f = 3; f < 9; ++f)
-        require_within(covariance_entry_fault(values[f]), where, kOdometryFields[3 + f]);
+        require_no_fault(covariance_entry_fault(values[f]), at_line, kOdometryFields[3 + f]);
       if (have_pose && from != current_pose)
-        throw ParseError(where + ": field 'i': " + std::to_string(from) +
-                         " breaks the pose chain (the current pose is " +
-                         std::to_string(current_pose) + ")");
+        throw field_error(where, "i", std::to_string(from) +
+                          " breaks the pose chain (the current pose is " +
+                          std::to_string(current_pose) + ")");
       if (to <= from)
-        throw ParseError(where + ": field 'j': " + std::to_string(to) +
-                         " does not follow pose " + std::to_string(from));
+        throw field_error(where, "j", std::to_string(to) +
+                          " does not follow pose " + std::to_string(from));
       Eigen::Matrix3d covariance;
       covariance << values[3], values[4], values[5], values[4], values[6], values[7], values[5],
           values[7], values[8];
@@ -91,10 +87,10 @@ Isam2dData read_isam2d(const std::string& path) {
       const std::int64_t landmark = parse_id(tokens[2], where, "l", "landmark");
       double values[5];
       for (int f = 0; f < 5; ++f) values[f] = parse_number(tokens[3 + f], where, kLandmarkFields[3 + f]);
-      require_within(distance_fault(values[0]), where, "x");
-      require_within(distance_fault(values[1]), where, "y");
+      require_no_fault(distance_fault(values[0]), at_line, "x");
+      require_no_fault(distance_fault(values[1]), at_line, "y");
       for (int f = 2; f < 5; ++f)
-        require_within(covariance_entry_fault(values[f]), where, kLandmarkFields[3 + f]);
+        require_no_fault(covariance_entry_fault(values[f]), at_line, kLandmarkFields[3 + f]);
       if (!have_pose) {
         // Seen from the first pose, before any motion: the initial step with u = 0, Q = 0.
         have_pose = true;
@@ -105,24 +101,24 @@ Isam2dData read_isam2d(const std::string& path) {
         offsets.push_back(0);
       }
       if (from != current_pose)
-        throw ParseError(where + ": field 'i': landmark seen from pose " + std::to_string(from) +
-                         " but the current pose is " + std::to_string(current_pose));
+        throw field_error(where, "i", "landmark seen from pose " + std::to_string(from) +
+                          " but the current pose is " + std::to_string(current_pose));
       Eigen::Matrix2d covariance;
       covariance << values[2], values[3], values[3], values[4];
       const std::string fault = definite_fault(covariance);
       if (!fault.empty()) throw ParseError(where + ": fields 'c11'..'c22': covariance " + fault);
       // One scan holds each landmark once (the filter refuses an id twice in one update).
       if (!landmarks_at_pose.insert(landmark).second)
-        throw ParseError(where + ": field 'l': landmark " + std::to_string(landmark) +
-                         " is seen twice from pose " + std::to_string(from));
+        throw field_error(where, "l", "landmark " + std::to_string(landmark) +
+                          " is seen twice from pose " + std::to_string(from));
       z.emplace_back(values[0], values[1]);
       R.emplace_back(values[2], values[3], values[3], values[4]);
       landmark_ids.push_back(landmark);
       offsets.back() = static_cast<std::int64_t>(z.size());
       ++data.landmark_lines;
     } else {
-      throw ParseError(where + ": field 'tag': unknown tag '" + excerpt(tag) +
-                       "' (expected ODOMETRY or LANDMARK)");
+      throw field_error(where, "tag", "unknown tag '" + excerpt(tag) +
+                        "' (expected ODOMETRY or LANDMARK)");
     }
   }
   if (u.empty()) throw ParseError(path + ": no ODOMETRY or LANDMARK line (nothing to replay)");

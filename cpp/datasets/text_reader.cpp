@@ -185,15 +185,19 @@ double parse_number(const std::string& text, const std::string& where, const std
   return value;
 }
 
+ParseError field_error(const std::string& where, const std::string& field, const std::string& message) {
+  return ParseError(where + ": field '" + field + "': " + message);
+}
+
 ParseError not_a_number(const std::string& text, const std::string& where, const std::string& field) {
-  return ParseError(where + ": field '" + field + "': '" + excerpt(text) + "' is not a number");
+  return field_error(where, field, "'" + excerpt(text) + "' is not a number");
 }
 
 std::int64_t parse_integer(const std::string& text, const std::string& where,
                            const std::string& field) {
   const double value = parse_number(text, where, field);
   if (value != std::floor(value) || std::fabs(value) > 9.0e15)
-    throw ParseError(where + ": field '" + field + "': '" + excerpt(text) + "' is not an integer");
+    throw field_error(where, field, "'" + excerpt(text) + "' is not an integer");
   return static_cast<std::int64_t>(value);
 }
 
@@ -242,8 +246,8 @@ CsvTable::CsvTable(const std::string& path, const std::vector<std::string>& colu
     std::size_t position = 0;
     while (position < header.size() && header[position] != name) ++position;
     if (position == header.size())
-      throw ParseError(reader.where() + ": field '" + name + "': missing column (header is '" +
-                       excerpt(line) + "')");
+      throw field_error(reader.where(), name, "missing column (header is '" +
+                        excerpt(line) + "')");
     positions.push_back(position);
   }
   while (reader.next_line(line)) {
@@ -275,16 +279,16 @@ void CsvTable::require_non_decreasing(std::size_t i) const {
   const std::vector<double>& values = values_[i];
   for (std::size_t row = 1; row < values.size(); ++row)
     if (values[row] < values[row - 1])
-      throw ParseError(where(row) + ": field '" + names_[i] + "': " + number_text(values[row]) +
-                       " goes backwards (previous row has " + number_text(values[row - 1]) + ")");
+      throw field_error(where(row), names_[i], number_text(values[row]) +
+                        " goes backwards (previous row has " + number_text(values[row - 1]) + ")");
 }
 
 void CsvTable::require_integer(std::size_t i) const {
   const std::vector<double>& values = values_[i];
   for (std::size_t row = 0; row < values.size(); ++row)
     if (values[row] != std::floor(values[row]))
-      throw ParseError(where(row) + ": field '" + names_[i] + "': " + number_text(values[row]) +
-                       " is not an integer");
+      throw field_error(where(row), names_[i], number_text(values[row]) +
+                        " is not an integer");
 }
 
 }  // namespace dcslam

@@ -11,12 +11,6 @@ namespace dcslam {
 
 namespace {
 constexpr double kHalfPi = 1.57079632679489661923;
-
-// The row's place is written only for a fault: building it for every field of every row was
-// a third of the reading.
-void require_within(const std::string& fault, const CsvTable& table, std::size_t row, const char* field) {
-  if (!fault.empty()) throw ParseError(table.where(row) + ": field '" + field + "': " + fault);
-}
 }  // namespace
 
 double AckermannVehicle::centre_speed(double encoder_speed, double steering) const {
@@ -136,11 +130,11 @@ VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
   for (std::size_t i = 0; i < samples.size(); ++i) {
     const double raw = odometry.column(2)[i];
     if (std::fabs(odometry.column(1)[i]) > kMaxSpeed)
-      throw ParseError(odometry.where(i) + ": field 'speed_mps': " + number_text(odometry.column(1)[i]) +
-                       " exceeds " + number_text(kMaxSpeed) + " m/s in magnitude");
+      throw field_error(odometry.where(i), "speed_mps", number_text(odometry.column(1)[i]) +
+                        " exceeds " + number_text(kMaxSpeed) + " m/s in magnitude");
     if (std::fabs(raw) > kMaxSteering)
-      throw ParseError(odometry.where(i) + ": field 'steering_rad': " + number_text(raw) +
-                       " exceeds " + number_text(kMaxSteering) + " rad in magnitude");
+      throw field_error(odometry.where(i), "steering_rad", number_text(raw) +
+                        " exceeds " + number_text(kMaxSteering) + " rad in magnitude");
     samples[i] = {odometry.column(0)[i], odometry.column(1)[i],
                   options.steering == Steering::Raw ? raw : recalibrated_steering(raw)};
   }
@@ -152,8 +146,8 @@ VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
   data.Q.resize(static_cast<Eigen::Index>(n), 9);
   for (std::size_t k = 0; k < n; ++k) {
     if (scans.column(0)[k] != static_cast<double>(k))
-      throw ParseError(scans.where(k) + ": field 'scan': expected " + std::to_string(k) +
-                       " (scans are numbered 0, 1, 2, ... in order)");
+      throw field_error(scans.where(k), "scan", "expected " + std::to_string(k) +
+                        " (scans are numbered 0, 1, 2, ... in order)");
     data.t(static_cast<Eigen::Index>(k)) = scans.column(1)[k];
   }
 
@@ -190,26 +184,27 @@ VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
   for (std::size_t i = 0; i < trees.rows(); ++i) {
     const double scan_value = trees.column(0)[i];
     if (scan_value < 0.0 || scan_value >= static_cast<double>(n))
-      throw ParseError(trees.where(i) + ": field 'scan': " + number_text(scan_value) +
-                       " is not a scan of " + files.scans);
+      throw field_error(trees.where(i), "scan", number_text(scan_value) +
+                        " is not a scan of " + files.scans);
     const auto scan = static_cast<std::size_t>(scan_value);
     if (scan < previous_scan)
-      throw ParseError(trees.where(i) + ": field 'scan': goes backwards (" +
-                       std::to_string(scan) + " after " + std::to_string(previous_scan) + ")");
+      throw field_error(trees.where(i), "scan", "goes backwards (" +
+                        std::to_string(scan) + " after " + std::to_string(previous_scan) + ")");
     previous_scan = scan;
     if (std::fabs(trees.column(1)[i] - data.t(static_cast<Eigen::Index>(scan))) > 1e-6)
-      throw ParseError(trees.where(i) + ": field 't_s': " + number_text(trees.column(1)[i]) +
-                       " differs from scan " + std::to_string(scan) + "'s time in " + files.scans);
+      throw field_error(trees.where(i), "t_s", number_text(trees.column(1)[i]) +
+                        " differs from scan " + std::to_string(scan) + "'s time in " + files.scans);
     ++counts[scan];
     const double range = trees.column(2)[i], bearing = trees.column(3)[i];
     const double diameter = trees.column(4)[i];
     if (range <= 0.0)
-      throw ParseError(trees.where(i) + ": field 'range_m': must be positive");
+      throw field_error(trees.where(i), "range_m", "must be positive");
     if (diameter < 0.0)
-      throw ParseError(trees.where(i) + ": field 'diameter_m': must be non-negative");
-    require_within(distance_fault(range), trees, i, "range_m");
-    require_within(angle_fault(bearing), trees, i, "bearing_rad");
-    require_within(distance_fault(diameter), trees, i, "diameter_m");
+      throw field_error(trees.where(i), "diameter_m", "must be non-negative");
+    const auto row = [&] { return trees.where(i); };
+    require_no_fault(distance_fault(range), row, "range_m");
+    require_no_fault(angle_fault(bearing), row, "bearing_rad");
+    require_no_fault(distance_fault(diameter), row, "diameter_m");
     const double centre_range = range + 0.5 * diameter;
     if (centre_range > options.max_range) {
       ++data.detections_beyond_range;
@@ -221,10 +216,9 @@ VictoriaParkData load_victoria_park(const VictoriaParkFiles& files,
   }
   for (std::size_t k = 0; k < n; ++k) {
     if (counts[k] != static_cast<std::int64_t>(scans.column(2)[k]))
-      throw ParseError(scans.where(k) + ": field 'n_trees': " +
-                       std::to_string(static_cast<std::int64_t>(scans.column(2)[k])) +
-                       " but " + files.trees + " holds " + std::to_string(counts[k]) +
-                       " trees of this scan");
+      throw field_error(scans.where(k), "n_trees", std::to_string(static_cast<std::int64_t>(scans.column(2)[k])) +
+                        " but " + files.trees + " holds " + std::to_string(counts[k]) +
+                        " trees of this scan");
     data.offsets[k + 1] += data.offsets[k];
   }
 
