@@ -70,6 +70,8 @@ Options of sim, scaling, vp and isam:
   --join-merge-max-leaves N  SlamConfig.join_merge_max_leaves (0: off)  [0]
   --chunked-jcbb-min-overlap N  SlamConfig.chunked_jcbb_min_overlap (0: off)  [100]
   --join-rival-margin N|none  SlamConfig.join_rival_margin (none: off)  [3]
+  --online-localisation-sigma S|inf|none  SlamConfig.online_localisation_sigma [m]: D&C
+                       localises each closed local map against its oldest map  [none]
   --seed S                                                          [0]
   --json FILE          write per-step times and totals as JSON
 
@@ -347,6 +349,12 @@ void apply_run_options(const Args& args, SlamConfig& config) {
     config.join_rival_margin.reset();
   } else if (!rival_margin.empty()) {
     config.join_rival_margin = static_cast<int>(number(args, "join-rival-margin", 0));
+  }
+  const std::string localisation_sigma = get(args, "online-localisation-sigma", "none");
+  if (localisation_sigma == "none") {
+    config.online_localisation_sigma.reset();
+  } else {
+    config.online_localisation_sigma = real_number(args, "online-localisation-sigma", 0.0);
   }
   config.keep_local_map_poses = switch_option(args, "keep-local-map-poses", false);
   config.new_feature_beside_tentative = switch_option(args, "new-feature-beside-tentative", false);
@@ -750,7 +758,8 @@ void refuse_unknown_options(const std::string& command, const Args& args) {
   const std::vector<std::string> run = {"filter", "joins", "local-map-features", "join-iterations",
                                         "join-feature-sigma", "keep-local-map-poses", "new-feature-beside-tentative",
                                         "tree-relinearisation", "weak-join-pairings", "join-merge-max-leaves",
-                                        "chunked-jcbb-min-overlap", "join-rival-margin", "seed", "json"};
+                                        "chunked-jcbb-min-overlap", "join-rival-margin", "online-localisation-sigma",
+                                        "seed", "json"};
   const std::vector<std::string> simulated = {"trajectory", "association", "clutter", "odometry-noise-scale",
                                               "gate", "unexplained-density", "new-feature-margin"};
   std::vector<std::string> known;

@@ -86,6 +86,9 @@ void SlamConfig::validate() const {
           "large_overlap_confidence: must lie in (0, 1), got " + number_text(large_overlap_confidence));
   require(!join_rival_margin || *join_rival_margin >= 0,
           "join_rival_margin: must be >= 0 or None, got " + std::to_string(join_rival_margin.value_or(0)));
+  require(!online_localisation_sigma || *online_localisation_sigma > 0.0,
+          "online_localisation_sigma: must be > 0 (inf: always) or None, got " +
+              (online_localisation_sigma ? number_text(*online_localisation_sigma) : std::string()));
   require(chunked_jcbb_min_overlap >= 0,
           "chunked_jcbb_min_overlap: must be >= 0 (0: RJC alone), got " + std::to_string(chunked_jcbb_min_overlap));
   require(std::isfinite(join_feature_sigma) && join_feature_sigma >= 0.0,

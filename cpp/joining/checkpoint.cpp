@@ -151,7 +151,7 @@ class Reader {
 
 // A field added to SlamConfig must be added here too (and kCheckpointVersion raised): the size
 // check below fails the build until it is.
-static_assert(sizeof(SlamConfig) == 208, "SlamConfig changed: update save_config/load_config");
+static_assert(sizeof(SlamConfig) == 224, "SlamConfig changed: update save_config/load_config");
 
 void save_config(Writer& out, const SlamConfig& c) {
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(c.observation));
@@ -186,6 +186,8 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod<std::uint8_t>(c.amortize);
   out.pod<std::uint8_t>(c.threaded_joins);
   out.pod<std::uint8_t>(c.keep_local_map_poses);
+  out.pod<std::uint8_t>(c.online_localisation_sigma.has_value());
+  out.pod(c.online_localisation_sigma.value_or(0.0));
 }
 
 template <typename Enum>
@@ -231,6 +233,9 @@ SlamConfig load_config(Reader& in) {
   c.amortize = in.flag();
   c.threaded_joins = in.flag();
   c.keep_local_map_poses = in.flag();
+  const bool has_online_localisation_sigma = in.flag();
+  const auto online_localisation_sigma = in.pod<double>();
+  if (has_online_localisation_sigma) c.online_localisation_sigma = online_localisation_sigma;
   c.validate();  // InvalidArgument naming the field
   return c;
 }
@@ -755,6 +760,10 @@ struct CheckpointAccess {
     out.pod(f.predictions_);
     out.pod(f.closed_local_maps_);
     out.pod(f.steps_in_closed_maps_);
+    out.pod<std::uint8_t>(f.localised_base_.has_value());
+    const Vec3 localised_base = f.localised_base_.value_or(Vec3::Zero());
+    out.doubles(localised_base.data(), 3);
+    out.pod(f.online_localisations_);
     out.pod(f.joins_created_);
     // Threaded: the worker runs a join in one go, so a started one is redone from its inputs.
     const bool keep_budgets = !f.config_.threaded_joins;
@@ -796,6 +805,11 @@ struct CheckpointAccess {
     f->predictions_ = in.pod<std::int64_t>();
     f->closed_local_maps_ = in.pod<std::int64_t>();
     f->steps_in_closed_maps_ = in.pod<std::int64_t>();
+    const bool localised = in.flag();
+    Vec3 localised_base;
+    for (Eigen::Index k = 0; k < 3; ++k) localised_base(k) = in.pod<double>();
+    if (localised) f->localised_base_ = localised_base;
+    f->online_localisations_ = in.pod<std::int64_t>();
     f->joins_created_ = in.pod<int>();
     Reader::require(f->joins_created_ >= 0 && f->joins_created_ < (1 << 24), "the number of joins");
     std::vector<std::shared_ptr<DCSlam::JoinTask>> tasks(static_cast<std::size_t>(f->joins_created_));

@@ -265,6 +265,8 @@ void DCSlam::close_local_map() {
                             std::make_shared<const LeafLog>(seal_leaf_log(open_log_, *node->map, local_merges))});
     open_log_ = LeafLog();
   }
+  localised_base_ = config_.online_localisation_sigma ? localise_closed_map(*node) : std::nullopt;
+  online_localisations_ += localised_base_ ? 1 : 0;
   push_and_merge(std::move(node));
   if (!config_.amortize && !config_.threaded_joins) {
     const auto tasks = queue_;  // a failing join empties queue_ (record_join_failure())
@@ -298,6 +300,8 @@ void DCSlam::take_restore_point() {
   point.predictions = predictions_;
   point.closed_local_maps = closed_local_maps_;
   point.steps_in_closed_maps = steps_in_closed_maps_;
+  point.localised_base = localised_base_;
+  point.online_localisations = online_localisations_;
   point.first_join = joins_created_;
   // The joins push_and_merge() will queue for the new local map (one leaf).
   int leaves = 1;
@@ -329,6 +333,8 @@ void DCSlam::roll_back(RestorePoint point) {
   predictions_ = point.predictions;
   closed_local_maps_ = point.closed_local_maps;
   steps_in_closed_maps_ = point.steps_in_closed_maps;
+  localised_base_ = point.localised_base;
+  online_localisations_ = point.online_localisations;
   joins_created_ = point.first_join;
   stats_.steps.resize(point.stats_steps);
   if (!stats_.steps.empty()) stats_.steps.back() = point.last_step;
@@ -1015,6 +1021,43 @@ Estimate DCSlam::estimate() const {
   return estimate;
 }
 
+// The oldest complete map is the leftmost leaf of the stack's tree of pending joins; the
+// chain between it and `closed` is every complete map after it, in order, as pose() composes
+// them. Each map's robot is independent of the others', as their data are.
+std::optional<Vec3> DCSlam::localise_closed_map(const Node& closed) const {
+  std::vector<std::shared_ptr<const GaussianMap>> chain;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const std::function<void(const Node&)> collect = [&](const Node& node) {
+      if (node.map) {
+        chain.push_back(node.map);
+        return;
+      }
+      collect(*node.task->left);
+      collect(*node.task->right);
+    };
+    for (const auto& node : stack_) collect(*node);
+  }
+  if (chain.empty()) return std::nullopt;
+  std::vector<PoseLink> between;
+  for (std::size_t k = 1; k < chain.size(); ++k) {
+    between.push_back(PoseLink{chain[k]->robot(), chain[k]->P().topLeftCorner<3, 3>()});
+  }
+  std::vector<Eigen::Index> tentative;
+  const std::vector<std::int64_t>& ids = closed.map->ids();
+  for (const TentativeFeature& feature : closed.tentative) {
+    const auto at = std::find(ids.begin(), ids.end(), feature.id);
+    if (at != ids.end()) tentative.push_back(at - ids.begin());
+  }
+  JoinOptions options = join_options_of(config_);
+  // A stream of its own, apart from every join's (join_options()).
+  options.rjc.seed = config_.seed ^ (0xD1B54A32D192ED03ULL * static_cast<std::uint64_t>(closed_local_maps_));
+  const std::optional<LocalisedPose> localised = localise_against(*chain.front(), between, *closed.map, tentative,
+                                                                       *config_.online_localisation_sigma, options);
+  if (!localised) return std::nullopt;
+  return localised->pose;
+}
+
 Vec3 DCSlam::node_robot(const Node& node) const {
   if (node.map) return node.map->robot();
   return compose(node_robot(*node.task->left), node_robot(*node.task->right));
@@ -1025,6 +1068,10 @@ Vec3 DCSlam::pose() const {
   Vec3 pose = Vec3::Zero();
   {
     std::lock_guard<std::mutex> lock(mutex_);
+    // Once the joins have put the closed map and the oldest one into one map, the chain holds
+    // what the localisation knew and more.
+    const bool joined_since = stack_.size() == 1 && stack_.front()->map;
+    if (localised_base_ && !joined_since) return compose(*localised_base_, local_->map().robot());
     for (const auto& node : stack_) pose = compose(pose, node_robot(*node));
   }
   return compose(pose, local_->map().robot());
@@ -1055,6 +1102,7 @@ const RunStats& DCSlam::stats() const {
   stats_.counters["joins_created"] = static_cast<double>(events_.size());
   stats_.counters["joins_finished"] = static_cast<double>(finished);
   stats_.counters["stack_depth"] = static_cast<double>(stack_.size());
+  stats_.counters["online_localisations"] = static_cast<double>(online_localisations_);
   // The real joins' decisions left to the next join (join_alternatives.hpp): weak joins', large
   // joins' doubtful pairs; the final fold's are not counted.
   double weak_joins = 0.0, doubtful_joins = 0.0, alternatives_taken = 0.0;

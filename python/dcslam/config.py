@@ -196,6 +196,16 @@ class SlamConfig:
         keep_local_map_poses: D&C keeps the robot pose at every local-map boundary in the
             map, with its covariance: ``Estimate.past_poses``, ``past_pose_ids`` and
             ``joint_covariance`` (docs/design.md §4.5). No effect on :class:`~dcslam.EkfSlam`.
+        online_localisation_sigma: D&C: when a local map closes, its features are paired
+            with the oldest map's (the join association) and the pose the next local map
+            starts from is conditioned on those pairs (5 at least), if the chain of maps
+            between the two leaves that pose with a position standard deviation of at most
+            this many metres: :meth:`~dcslam.DCSlam.pose` and the online trajectory then know
+            of a place seen again before the joins reach it. The maps and
+            :meth:`~dcslam.DCSlam.estimate` are unchanged. Choose it below the spacing of
+            your landmarks; ``math.inf``: always. ``None`` (default, the paper's D&C): the pose
+            composes the stack's maps (docs/divide_and_conquer.md, "The online pose on places
+            seen again", has the measurements). No effect on :class:`~dcslam.EkfSlam`.
     """
 
     observation: Observation = "range_bearing"
@@ -228,6 +238,7 @@ class SlamConfig:
     amortize: bool = True
     threaded_joins: bool = False
     keep_local_map_poses: bool = False
+    online_localisation_sigma: Optional[float] = None
 
     def _to_core(self) -> "_core.SlamConfig":
         return to_core_struct(self, _core.SlamConfig(), "SlamConfig")

@@ -219,6 +219,48 @@ TEST_P(DcSlamAnytime, EstimateMatchesEkfAtAnyStepWithoutDisturbingTheRun) {
 INSTANTIATE_TEST_SUITE_P(Modes, DcSlamAnytime,
                          ::testing::Values(Mode::Immediate, Mode::Amortized, Mode::Threaded), CaseName());
 
+// SlamConfig::online_localisation_sigma, in the linear case with ids: the EKF's pose is the exact
+// posterior mean, the chain of the stack's maps ignores every pairing its joins have not made
+// yet, and the localisation adds those of each closed local map with the oldest map. So the
+// localised online pose is nearer the EKF's; the maps and the estimate are those of the plain
+// run, bit for bit; and where every map is joined into one, the pose is the chain's, the EKF's.
+TEST(DcSlamOnlineLocalisation, BringsThePoseNearerTheExactOneAndLeavesTheMapsAlone) {
+  for (const Mode mode : {Mode::Immediate, Mode::Amortized}) {
+    const auto run = linear_gaussian_run(130, 5);
+    EkfSlam ekf(linear_config(1));
+    DCSlam plain(mode_config(6, mode));
+    SlamConfig config = mode_config(6, mode);
+    config.online_localisation_sigma = std::numeric_limits<double>::infinity();
+    DCSlam localised(config);
+    double plain_error = 0.0, localised_error = 0.0;
+    int exact_pose_checks = 0;
+    for (std::size_t k = 0; k < run.size(); ++k) {
+      const std::vector<SlamStep> one(run.begin() + static_cast<std::ptrdiff_t>(k),
+                                      run.begin() + static_cast<std::ptrdiff_t>(k) + 1);
+      run_steps(ekf, one);
+      run_steps(plain, one);
+      run_steps(localised, one);
+      plain_error += (plain.pose() - ekf.pose()).head<2>().norm();
+      localised_error += (localised.pose() - ekf.pose()).head<2>().norm();
+      if (mode == Mode::Immediate && localised.stack_shape().size() == 1 &&
+          localised.local_map().map().robot().isZero() && !localised.joins().empty()) {
+        EXPECT_LT((localised.pose() - ekf.pose()).cwiseAbs().maxCoeff(), 1e-9) << k;
+        ++exact_pose_checks;
+      }
+    }
+    EXPECT_GT(localised.stats().counters.at("online_localisations"), 5.0) << mode_name(mode);
+    EXPECT_LT(localised_error, 0.7 * plain_error) << mode_name(mode);
+    if (mode == Mode::Immediate) {
+      EXPECT_GE(exact_pose_checks, 2);
+    }
+    plain.finish_joins();
+    localised.finish_joins();
+    const Estimate a = plain.estimate(), b = localised.estimate();
+    EXPECT_TRUE((a.covariance.array() == b.covariance.array()).all()) << mode_name(mode);
+    EXPECT_TRUE((a.landmarks.array() == b.landmarks.array()).all()) << mode_name(mode);
+  }
+}
+
 // The run of tests/python/test_join_failures.py: local maps of one feature, closing every four
 // steps, and no motion noise. Steps 9 and 13 see landmark 1000 at a range of 1e-300: the join
 // of their local maps (queued by step 13's update) fails on that pair.

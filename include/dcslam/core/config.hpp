@@ -159,6 +159,16 @@ struct SlamConfig {
   // (docs/design.md §4.5), as past poses with their full covariance (Estimate::past_poses);
   // the EKF keeps none.
   bool keep_local_map_poses = false;
+  // D&C: when a local map closes, its features are paired with the oldest map's and its end
+  // pose (the next local map's base) is conditioned on the pairs, through the chain of maps
+  // between them (online_localisation.hpp), if that chain leaves the pose with a position
+  // standard deviation of at most this many metres: pose() then knows of a place seen again
+  // before the joins reach it. The maps and estimate() are unchanged. Above it the pairing
+  // would be a loop closure at large uncertainty, left to the joins. unset (the paper's D&C):
+  // pose() composes the stack's maps. Off by measurement: it pays where the landmarks are far
+  // apart for the uncertainty (docs/divide_and_conquer.md, "The online pose on places seen
+  // again").
+  std::optional<double> online_localisation_sigma;
 
   // Throws InvalidArgument naming the first field that is out of range.
   void validate() const;

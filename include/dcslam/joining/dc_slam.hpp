@@ -24,6 +24,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <unordered_map>
@@ -35,6 +36,7 @@
 #include "dcslam/joining/join_association.hpp"
 #include "dcslam/joining/join_tree.hpp"
 #include "dcslam/joining/map_joining.hpp"
+#include "dcslam/joining/online_localisation.hpp"
 #include "dcslam/core/slam_filter.hpp"
 #include "dcslam/joining/tentative_features.hpp"
 
@@ -167,6 +169,8 @@ class DCSlam : public SlamFilter {
     std::map<std::string, double> closed_maps_counters;
     JoinTree tree;
     LeafLog open_log;  // of the local map before the update
+    std::optional<Vec3> localised_base;
+    std::int64_t online_localisations = 0;
   };
   // The local map before an update that may close it (update()); moved into the restore point
   // if it does, else dropped by the next update.
@@ -185,6 +189,10 @@ class DCSlam : public SlamFilter {
   void roll_back(RestorePoint point);  // mutex_ held, the worker idle
   void complete(JoinTask& task);
   void worker_loop();
+  // The base of the local map that `closed` (not yet on the stack) hands over, localised
+  // against the stack's oldest complete map (SlamConfig::online_localisation_sigma); nullopt
+  // where it is left to the chain.
+  std::optional<Vec3> localise_closed_map(const Node& closed) const;
   // Options of join `index`, whose first map's robot has pose id `first_robot_id`.
   JoinOptions join_options(int index, std::int64_t first_robot_id) const;
   // The join of two adjacent nodes' maps (or of versions of them), with the tentative features
@@ -325,6 +333,10 @@ class DCSlam : public SlamFilter {
   std::int64_t closed_local_maps_ = 0;
   std::int64_t steps_in_closed_maps_ = 0;
   int joins_created_ = 0;
+  // The open local map's base in the global frame, from localise_closed_map() at the last
+  // closure; unset: pose() composes the stack's maps.
+  std::optional<Vec3> localised_base_;
+  std::int64_t online_localisations_ = 0;
 
   mutable std::mutex mutex_;  // guards the stack, tasks, events and aliases (threaded mode)
   std::condition_variable work_ready_, work_done_;
