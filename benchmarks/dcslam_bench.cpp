@@ -350,10 +350,10 @@ void apply_run_options(const Args& args, SlamConfig& config) {
   } else if (!rival_margin.empty()) {
     config.join_rival_margin = static_cast<int>(number(args, "join-rival-margin", 0));
   }
-  const std::string localisation_sigma = get(args, "online-localisation-sigma", "none");
+  const std::string localisation_sigma = get(args, "online-localisation-sigma", "");
   if (localisation_sigma == "none") {
     config.online_localisation_sigma.reset();
-  } else {
+  } else if (!localisation_sigma.empty()) {
     config.online_localisation_sigma = real_number(args, "online-localisation-sigma", 0.0);
   }
   config.keep_local_map_poses = switch_option(args, "keep-local-map-poses", false);
