@@ -181,6 +181,13 @@ INSTANTIATE_TEST_SUITE_P(
                       DcCase{25, Mode::Threaded}),
     CaseName());
 
+// Step k of `run` given to each filter in turn.
+void step_each(const std::vector<SlamStep>& run, std::size_t k, std::initializer_list<SlamFilter*> filters) {
+  const std::vector<SlamStep> one(run.begin() + static_cast<std::ptrdiff_t>(k),
+                                  run.begin() + static_cast<std::ptrdiff_t>(k) + 1);
+  for (SlamFilter* filter : filters) run_steps(*filter, one);
+}
+
 class DcSlamAnytime : public ::testing::TestWithParam<Mode> {};
 
 TEST_P(DcSlamAnytime, EstimateMatchesEkfAtAnyStepWithoutDisturbingTheRun) {
@@ -191,11 +198,7 @@ TEST_P(DcSlamAnytime, EstimateMatchesEkfAtAnyStepWithoutDisturbingTheRun) {
   DCSlam undisturbed(mode_config(6, mode));
   int exact_pose_checks = 0;
   for (std::size_t k = 0; k < run.size(); ++k) {
-    const std::vector<SlamStep> one(run.begin() + static_cast<std::ptrdiff_t>(k),
-                                    run.begin() + static_cast<std::ptrdiff_t>(k) + 1);
-    run_steps(ekf, one);
-    run_steps(dc, one);
-    run_steps(undisturbed, one);
+    step_each(run, k, {&ekf, &dc, &undisturbed});
     if (k % 7 == 0) {
       EXPECT_LT(relative_difference(dc.estimate(), ekf.estimate()), 1e-9) << k;
     }
@@ -235,11 +238,7 @@ TEST(DcSlamOnlineLocalisation, BringsThePoseNearerTheExactOneAndLeavesTheMapsAlo
     double plain_error = 0.0, localised_error = 0.0;
     int exact_pose_checks = 0;
     for (std::size_t k = 0; k < run.size(); ++k) {
-      const std::vector<SlamStep> one(run.begin() + static_cast<std::ptrdiff_t>(k),
-                                      run.begin() + static_cast<std::ptrdiff_t>(k) + 1);
-      run_steps(ekf, one);
-      run_steps(plain, one);
-      run_steps(localised, one);
+      step_each(run, k, {&ekf, &plain, &localised});
       plain_error += (plain.pose() - ekf.pose()).head<2>().norm();
       localised_error += (localised.pose() - ekf.pose()).head<2>().norm();
       if (mode == Mode::Immediate && localised.stack_shape().size() == 1 &&
