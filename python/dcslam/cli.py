@@ -97,6 +97,11 @@ JOIN_ITERATIONS_OPTION = typer.Option(None, "--join-iterations", min=1, help="D&
                                       "of each join (1: the one-shot join; default: SlamConfig's).")
 KEEP_POSES_OPTION = typer.Option(False, "--keep-local-map-poses", help="D&C: keep the robot pose at every "
                                   "local-map boundary in the map (past_poses in map_dc.npz).")
+ONLINE_LOCALISATION_OPTION = typer.Option(
+    None, "--online-localisation-sigma",
+    help="D&C: localise each closed local map against the oldest map where the robot's position std "
+    "is at most this many metres, so that the online trajectory files know of places seen again "
+    "(about twice the landmarks' spacing: 5 on Victoria Park; 'inf': always; default: off).")
 PROGRESS_OPTION = typer.Option(None, "--progress/--no-progress", help="Progress bar (default: on a terminal).")
 CHECKPOINT_OPTION = typer.Option(None, "--checkpoint", help="Save the run's state (every filter, every step "
                                  "so far) to this file every --checkpoint-interval steps and when the steps end, "
@@ -120,7 +125,7 @@ class _Saving(NamedTuple):
 
 
 def _config_with(cfg, association, join_association, local_map_features, join_iterations,
-                 keep_local_map_poses):
+                 keep_local_map_poses, online_localisation_sigma=None):
     """The dataset's config with the command line's overrides."""
     from .config import SlamConfig
 
@@ -135,7 +140,9 @@ def _config_with(cfg, association, join_association, local_map_features, join_it
         values["join_iterations"] = join_iterations
     if keep_local_map_poses:
         values["keep_local_map_poses"] = True
-    return SlamConfig.from_dict(values)
+    if online_localisation_sigma is not None:
+        values["online_localisation_sigma"] = online_localisation_sigma
+    return SlamConfig.from_dict(values).validate()  # a bad value named here, not by the filter
 
 
 def _filters(choice: FilterChoice) -> List[str]:
@@ -409,6 +416,7 @@ def run_victoria_park(
     local_map_features: Optional[int] = LOCAL_MAP_OPTION,
     join_iterations: Optional[int] = JOIN_ITERATIONS_OPTION,
     keep_local_map_poses: bool = KEEP_POSES_OPTION,
+    online_localisation_sigma: Optional[float] = ONLINE_LOCALISATION_OPTION,
     progress: Optional[bool] = PROGRESS_OPTION,
     checkpoint: Optional[Path] = CHECKPOINT_OPTION,
     checkpoint_interval: int = CHECKPOINT_INTERVAL_OPTION,
@@ -428,7 +436,7 @@ def run_victoria_park(
     try:
         dataset = victoria_park(data_dir)
         cfg = _config_with(dataset.slam_config(), association, join_association, local_map_features,
-                           join_iterations, keep_local_map_poses)
+                           join_iterations, keep_local_map_poses, online_localisation_sigma)
     except ValueError as error:
         _fail(str(error))
     _run_dataset("Victoria Park", dataset.steps, cfg, filter, output, max_steps, plots, progress, gps=dataset.gps,
@@ -449,6 +457,7 @@ def run_isam(
     local_map_features: Optional[int] = LOCAL_MAP_OPTION,
     join_iterations: Optional[int] = JOIN_ITERATIONS_OPTION,
     keep_local_map_poses: bool = KEEP_POSES_OPTION,
+    online_localisation_sigma: Optional[float] = ONLINE_LOCALISATION_OPTION,
     progress: Optional[bool] = PROGRESS_OPTION,
     checkpoint: Optional[Path] = CHECKPOINT_OPTION,
     checkpoint_interval: int = CHECKPOINT_INTERVAL_OPTION,
@@ -465,7 +474,7 @@ def run_isam(
     try:
         dataset = read_isam2d(file)
         cfg = _config_with(dataset.slam_config(), association, join_association, local_map_features,
-                           join_iterations, keep_local_map_poses)
+                           join_iterations, keep_local_map_poses, online_localisation_sigma)
     except ValueError as error:
         _fail(str(error))
     _run_dataset(file.name, dataset.steps, cfg, filter, output, max_steps, plots, progress,

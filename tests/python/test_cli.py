@@ -60,6 +60,19 @@ def test_run_isam_writes_outputs(tmp_path):
         assert io.read_kitti(tmp_path / f"trajectory_map_{name}.kitti").shape == (0, 3)
 
 
+def test_run_victoria_park_localises_its_online_trajectory_on_request(tmp_path):
+    out = run("run", "victoria-park", "--max-steps", "1500", "--output", str(tmp_path), "--no-plots", "--no-progress",
+              "--online-localisation-sigma", "5")
+    assert out.returncode == 0, out.stdout + out.stderr
+    stats = json.loads((tmp_path / "stats_dc.json").read_text())
+    assert stats["config"]["online_localisation_sigma"] == 5.0
+    assert stats["counters"]["online_localisations"] > 0
+    out = run("run", "victoria-park", "--max-steps", "10", "--output", str(tmp_path), "--no-progress",
+              "--online-localisation-sigma", "0")
+    assert out.returncode != 0
+    assert "error: SlamConfig.online_localisation_sigma: must be > 0" in out.stdout + out.stderr
+
+
 def test_run_isam_refuses_a_bad_file(tmp_path):
     bad = tmp_path / "bad.txt"
     bad.write_text("ODOMETRY 0 1 oops\n")

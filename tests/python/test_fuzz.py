@@ -253,7 +253,7 @@ RUN_OPTIONS = {"--filter": ["ekf", "dc", "both"], "--max-steps": ["3", "99999999
                "--association": ["known", "nn", "jcbb"], "--join-association": ["known", "rjc", "jcbb"],
                "--local-map-features": ["3", "99999999999999999999"], "--join-iterations": ["3"],
                "--output": ["{blocked}", "{out}"], "--plots": None, "--no-plots": None,
-               "--keep-local-map-poses": None, "--progress": None}
+               "--keep-local-map-poses": None, "--online-localisation-sigma": ["5", "inf"], "--progress": None}
 CLI_OPTIONS = [RUN_OPTIONS, dict(RUN_OPTIONS, **{"--data-dir": ["{blocked}", "{isam}", "{vp}"]}),
                {"--samples": ["1", "3"]}]
 UNKNOWN_OPTIONS = {"--nope": ["1"], "--help": None}
