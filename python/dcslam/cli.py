@@ -101,7 +101,7 @@ ONLINE_LOCALISATION_OPTION = typer.Option(
     None, "--online-localisation-sigma",
     help="D&C: localise each closed local map against the oldest map where the robot's position std "
     "is at most this many metres, so that the online trajectory files know of places seen again "
-    "(about twice the landmarks' spacing: 5 on Victoria Park; 'inf': always; default: off).")
+    "(10 suited every scene measured; 'inf': always; default: off).")
 PROGRESS_OPTION = typer.Option(None, "--progress/--no-progress", help="Progress bar (default: on a terminal).")
 CHECKPOINT_OPTION = typer.Option(None, "--checkpoint", help="Save the run's state (every filter, every step "
                                  "so far) to this file every --checkpoint-interval steps and when the steps end, "

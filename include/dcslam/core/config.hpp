@@ -165,9 +165,9 @@ struct SlamConfig {
   // standard deviation of at most this many metres: pose() then knows of a place seen again
   // before the joins reach it. The maps and estimate() are unchanged. Above it the pairing
   // would be a loop closure at large uncertainty, left to the joins. unset (the paper's D&C):
-  // pose() composes the stack's maps. Off by measurement: the value that pays is about twice
-  // the median distance between neighbouring landmarks, 1 m on the simulated scenes and 5-10 m
-  // on Victoria Park (docs/divide_and_conquer.md, "The online pose on places seen again").
+  // pose() composes the stack's maps. 10 m suited the simulated scenes and Victoria Park; off
+  // by default for its cost on the schedule, a localisation being a step's work
+  // (docs/divide_and_conquer.md, "The online pose on places seen again").
   std::optional<double> online_localisation_sigma;
 
   // Throws InvalidArgument naming the first field that is out of range.
