@@ -20,6 +20,7 @@ THREAD_TESTS+=':LocalMapSizes/DcSlamLinear.EqualsEkfExactly/features4_threaded'
 THREAD_TESTS+=':LocalMapSizes/DcSlamLinear.EqualsEkfExactly/features25_threaded'
 THREAD_TESTS+=':Modes/DcSlamAnytime.*/threaded'
 THREAD_TESTS+=':LocalMapSizes/DcSlamPastPoses.*/features4_threaded:LocalMapSizes/DcSlamPastPoses.*/features25_threaded'
+THREAD_TESTS+=':DcSlamOnlineLocalisation.*'
 
 which="${1:-all}"
 case "$which" in

@@ -227,8 +227,10 @@ INSTANTIATE_TEST_SUITE_P(Modes, DcSlamAnytime,
 // yet, and the localisation adds those of each closed local map with the oldest map. So the
 // localised online pose is nearer the EKF's; the maps and the estimate are those of the plain
 // run, bit for bit; and where every map is joined into one, the pose is the chain's, the EKF's.
+// Threaded, the online pose depends on when the worker finishes a join, so only the maps are
+// compared (and ThreadSanitizer sees the localisations read the stack beside the worker).
 TEST(DcSlamOnlineLocalisation, BringsThePoseNearerTheExactOneAndLeavesTheMapsAlone) {
-  for (const Mode mode : {Mode::Immediate, Mode::Amortized}) {
+  for (const Mode mode : {Mode::Immediate, Mode::Amortized, Mode::Threaded}) {
     const auto run = linear_gaussian_run(130, 5);
     EkfSlam ekf(linear_config(1));
     DCSlam plain(mode_config(6, mode));
@@ -248,7 +250,9 @@ TEST(DcSlamOnlineLocalisation, BringsThePoseNearerTheExactOneAndLeavesTheMapsAlo
       }
     }
     EXPECT_GT(localised.stats().counters.at("online_localisations"), 5.0) << mode_name(mode);
-    EXPECT_LT(localised_error, 0.7 * plain_error) << mode_name(mode);
+    if (mode != Mode::Threaded) {
+      EXPECT_LT(localised_error, 0.7 * plain_error) << mode_name(mode);
+    }
     if (mode == Mode::Immediate) {
       EXPECT_GE(exact_pose_checks, 2);
     }
