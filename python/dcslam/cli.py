@@ -498,6 +498,7 @@ def run_mrclam(
     join_iterations: Optional[int] = JOIN_ITERATIONS_OPTION,
     checkpoint_every: int = typer.Option(10, "--checkpoint-every", min=1, help="Take the full estimate every N "
                                          "steps for the robot's NEES over time."),
+    online_localisation_sigma: Optional[float] = ONLINE_LOCALISATION_OPTION,
     progress: Optional[bool] = PROGRESS_OPTION,
     checkpoint: Optional[Path] = CHECKPOINT_OPTION,
     checkpoint_interval: int = CHECKPOINT_INTERVAL_OPTION,
@@ -517,7 +518,8 @@ def run_mrclam(
         cfg = dataset.slam_config()
         if association is not None and association is not AssociationChoice.known and join_association is None:
             join_association = JoinAssociationChoice.rjc
-        cfg = _config_with(cfg, association, join_association, local_map_features, join_iterations, False)
+        cfg = _config_with(cfg, association, join_association, local_map_features, join_iterations, False,
+                           online_localisation_sigma)
     except ValueError as error:
         _fail(str(error))
     _run_dataset(f"MR.CLAM robot {robot}", dataset.steps, cfg, filter, output, max_steps, plots, progress,
