@@ -137,6 +137,18 @@ bool switch_option(const Args& args, const std::string& key, bool fallback) {
   return value == 1;
 }
 
+// An option of an optional field, e.g. --join-rival-margin N|none: "none" unsets the field, a
+// value (read by `parse(key)`) sets it, and without the option the field keeps its preset.
+template <typename T, typename Parse>
+void optional_option(const Args& args, const std::string& key, std::optional<T>& field, const Parse& parse) {
+  const std::string text = get(args, key, "");
+  if (text == "none") {
+    field.reset();
+  } else if (!text.empty()) {
+    field = parse(key);
+  }
+}
+
 // A comma-separated list of integers, e.g. --sizes 100,200,400.
 std::vector<long> number_list(const Args& args, const std::string& key, const std::string& fallback) {
   std::vector<long> values;
@@ -344,18 +356,10 @@ void apply_run_options(const Args& args, SlamConfig& config) {
       static_cast<int>(number(args, "join-merge-max-leaves", config.join_merge_max_leaves));
   config.chunked_jcbb_min_overlap =
       static_cast<int>(number(args, "chunked-jcbb-min-overlap", config.chunked_jcbb_min_overlap));
-  const std::string rival_margin = get(args, "join-rival-margin", "");
-  if (rival_margin == "none") {
-    config.join_rival_margin.reset();
-  } else if (!rival_margin.empty()) {
-    config.join_rival_margin = static_cast<int>(number(args, "join-rival-margin", 0));
-  }
-  const std::string localisation_sigma = get(args, "online-localisation-sigma", "");
-  if (localisation_sigma == "none") {
-    config.online_localisation_sigma.reset();
-  } else if (!localisation_sigma.empty()) {
-    config.online_localisation_sigma = real_number(args, "online-localisation-sigma", 0.0);
-  }
+  optional_option(args, "join-rival-margin", config.join_rival_margin,
+                  [&](const std::string& key) { return static_cast<int>(number(args, key, 0)); });
+  optional_option(args, "online-localisation-sigma", config.online_localisation_sigma,
+                  [&](const std::string& key) { return real_number(args, key, 0.0); });
   config.keep_local_map_poses = switch_option(args, "keep-local-map-poses", false);
   config.new_feature_beside_tentative = switch_option(args, "new-feature-beside-tentative", false);
   const std::string joins = get(args, "joins", "amortized");

@@ -60,10 +60,7 @@ GaussianMap moved_through_chain(const PoseLink& chain, const GaussianMap& newest
   const auto n = static_cast<Index>(rows.size());
   Eigen::MatrixXd sigma = Eigen::MatrixXd::Zero(3 + n, 3 + n);
   sigma.topLeftCorner<3, 3>() = chain.covariance;
-  const auto P = newest.P();
-  for (Index a = 0; a < n; ++a) {
-    for (Index b = 0; b < n; ++b) sigma(3 + a, 3 + b) = P(rows[static_cast<std::size_t>(a)], rows[static_cast<std::size_t>(b)]);
-  }
+  sigma.bottomRightCorner(n, n) = newest.P()(rows, rows);
   moved.P() = J * sigma * J.transpose();
   return moved;
 }
