@@ -125,7 +125,7 @@ class _Saving(NamedTuple):
 
 
 def _config_with(cfg, association, join_association, local_map_features, join_iterations,
-                 keep_local_map_poses, online_localisation_sigma=None):
+                 keep_local_map_poses, online_localisation_sigma):
     """The dataset's config with the command line's overrides."""
     from .config import SlamConfig
 
