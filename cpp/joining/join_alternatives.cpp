@@ -122,6 +122,7 @@ void DecidingJoin::choose() {
     if (k == best) continue;
     discarded_work_units_ += candidates_[k].join->report().work_units;
     discarded_seconds_ += candidates_[k].join->report().seconds_total;
+    discarded_association_seconds_ += candidates_[k].join->report().seconds_association;
   }
   took_first_ = candidates_[best].first_version;
   took_second_ = candidates_[best].second_version;
@@ -200,9 +201,11 @@ JoinReport DecidingJoin::report() const {
   JoinReport report = chosen_->report();
   report.work_units += discarded_work_units_;
   report.seconds_total += discarded_seconds_;
+  report.seconds_association += discarded_association_seconds_;
   for (const auto& alternative : alternatives_) {
     report.work_units += alternative->report().work_units;
     report.seconds_total += alternative->report().seconds_total;
+    report.seconds_association += alternative->report().seconds_association;
   }
   report.deferred_pairings = deferred_pairs_;
   report.alternatives_taken = (took_first_ > 0 ? 1 : 0) + (took_second_ > 0 ? 1 : 0);

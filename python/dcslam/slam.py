@@ -361,7 +361,8 @@ class DCSlamStats(SlamStats):
             paired more than RJC, ``cfg.chunked_jcbb_min_overlap``), ``iterations`` (linearisation points of the
             constraint update, at most ``cfg.join_iterations``; 0 without pairings),
             ``seconds`` (summed over the slices it ran in), ``seconds_association``,
-            ``work_units``.
+            ``work_units`` (all three include the associations of the version combinations
+            not chosen and the joins of the other versions).
         stack: (local maps, features) of each map on the stack, bottom first.
     """
 

@@ -123,6 +123,10 @@ TEST(DecidingJoin, TakesTheCombinationWithTheMostPairsInAll) {
     EXPECT_EQ(join.first_version_taken(), static_cast<int>(best_first)) << "trial " << trial;
     EXPECT_EQ(join.second_version_taken(), static_cast<int>(best_second)) << "trial " << trial;
     EXPECT_EQ(join.report().alternatives_taken, (best_first > 0 ? 1 : 0) + (best_second > 0 ? 1 : 0));
+    // The associations of the combinations not chosen are the join's time too (every input has
+    // two versions or more, so some combination was discarded).
+    EXPECT_GT(join.report().seconds_association, join.join().report().seconds_association);
+    EXPECT_LE(join.report().seconds_association, join.report().seconds_total);
     took_an_alternative += best_first > 0 || best_second > 0 ? 1 : 0;
     took_a_second_version += best_first == 2 || best_second == 2 ? 1 : 0;
     DecidedJoin decided = join.take_result(none, 0);

@@ -159,6 +159,7 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
   int deferred_pairs_ = 0;
   std::int64_t discarded_work_units_ = 0;
   double discarded_seconds_ = 0.0;
+  double discarded_association_seconds_ = 0.0;
 };
 
 }  // namespace dcslam
