@@ -669,6 +669,43 @@ struct CheckpointAccess {
     f.relinearisation_.halvings = in.pod<int>();
   }
 
+  static void save_localisation(Writer& out, const DCSlam::PendingLocalisation& pending) {
+    const LocalisationInputs& inputs = pending.inputs;
+    save_map(out, *inputs.oldest);
+    out.count(inputs.between.size());
+    for (const PoseLink& link : inputs.between) {
+      out.doubles(link.mean.data(), 3);
+      out.doubles(link.covariance.data(), 9);
+    }
+    save_map(out, *inputs.newest);
+    out.ids(std::vector<std::int64_t>(inputs.left_out.begin(), inputs.left_out.end()));
+    out.pod(inputs.options.rjc.seed);
+    out.pod(pending.deadline_step);
+    out.ids(pending.budgets);
+  }
+
+  static DCSlam::PendingLocalisation load_localisation(Reader& in, const DCSlam& f) {
+    DCSlam::PendingLocalisation pending;
+    LocalisationInputs& inputs = pending.inputs;
+    inputs.oldest = std::make_shared<const GaussianMap>(load_map(in));
+    inputs.between.resize(in.count(96));
+    for (PoseLink& link : inputs.between) {
+      for (Eigen::Index k = 0; k < 3; ++k) link.mean(k) = in.pod<double>();
+      for (Eigen::Index k = 0; k < 9; ++k) link.covariance.data()[k] = in.pod<double>();
+    }
+    inputs.newest = std::make_shared<const GaussianMap>(load_map(in));
+    for (const std::int64_t index : in.ids()) {
+      Reader::require(index >= 0 && index < inputs.newest->num_features(), "a localisation's left-out feature");
+      inputs.left_out.push_back(static_cast<Eigen::Index>(index));
+    }
+    inputs.max_sigma = f.config_.online_localisation_sigma.value_or(0.0);
+    inputs.options = f.localisation_options(in.pod<std::uint64_t>());
+    pending.deadline_step = in.pod<std::int64_t>();
+    pending.budgets = in.ids();
+    for (const std::int64_t budget : pending.budgets) Reader::require(budget > 0, "a localisation's budget");
+    return pending;
+  }
+
   static void save_node(Writer& out, const DCSlam::Node& node, bool keep_budgets) {
     out.pod(node.leaves);
     out.pod(node.first_leaf);
@@ -764,6 +801,9 @@ struct CheckpointAccess {
     const Vec3 localised_base = f.localised_base_.value_or(Vec3::Zero());
     out.doubles(localised_base.data(), 3);
     out.pod(f.online_localisations_);
+    const std::optional<DCSlam::PendingLocalisation> localisation = f.pending_localisation();
+    out.pod<std::uint8_t>(localisation.has_value());
+    if (localisation) save_localisation(out, *localisation);
     out.pod(f.joins_created_);
     // Threaded: the worker runs a join in one go, so a started one is redone from its inputs.
     const bool keep_budgets = !f.config_.threaded_joins;
@@ -810,6 +850,8 @@ struct CheckpointAccess {
     for (Eigen::Index k = 0; k < 3; ++k) localised_base(k) = in.pod<double>();
     if (localised) f->localised_base_ = localised_base;
     f->online_localisations_ = in.pod<std::int64_t>();
+    std::optional<DCSlam::PendingLocalisation> localisation;
+    if (in.flag()) localisation = load_localisation(in, *f);
     f->joins_created_ = in.pod<int>();
     Reader::require(f->joins_created_ >= 0 && f->joins_created_ < (1 << 24), "the number of joins");
     std::vector<std::shared_ptr<DCSlam::JoinTask>> tasks(static_cast<std::size_t>(f->joins_created_));
@@ -843,6 +885,12 @@ struct CheckpointAccess {
     load_tree(in, *f);
     f->stats_ = load_stats(in);
     in.finish();
+    // Redo the work the saved localisation had done, with the budgets it had been given.
+    if (localisation) {
+      Reader::require(f->config_.online_localisation_sigma.has_value(), "a localisation without online_localisation_sigma");
+      f->resume_localisation(std::move(localisation));
+      Reader::require(!f->localisation_->done(), "a localisation under way that its budgets finish");
+    }
     // Redo the work the saved joins had done, with the budgets they had been given.
     for (const auto& task : f->queue_) {
       const std::vector<std::int64_t> budgets = std::move(task->budgets);

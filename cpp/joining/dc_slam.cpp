@@ -198,6 +198,7 @@ std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::ve
   try {
     if (local_->map().num_features() >= config_.local_map_features) close_local_map();
     if (config_.amortize && !config_.threaded_joins) run_amortized_budget();
+    if (config_.amortize || config_.threaded_joins) advance_localisation();
   } catch (const JoinFailed&) {
     std::unique_lock<std::mutex> lock(mutex_);
     raise_join_failure(lock);
@@ -257,6 +258,7 @@ void DCSlam::close_local_map() {
   local_ = std::make_unique<EkfSlam>(config_);
   local_->set_next_fresh_id(next_id);
   local_->keep_tentative_first_seen_until(window);
+  const std::int64_t closed_steps = local_map_steps_;
   steps_in_closed_maps_ += local_map_steps_;
   local_map_steps_ = 0;
   ++closed_local_maps_;
@@ -265,8 +267,7 @@ void DCSlam::close_local_map() {
                             std::make_shared<const LeafLog>(seal_leaf_log(open_log_, *node->map, local_merges))});
     open_log_ = LeafLog();
   }
-  localised_base_ = config_.online_localisation_sigma ? localise_closed_map(*node) : std::nullopt;
-  online_localisations_ += localised_base_ ? 1 : 0;
+  if (config_.online_localisation_sigma) begin_localisation(*node, closed_steps);
   push_and_merge(std::move(node));
   if (!config_.amortize && !config_.threaded_joins) {
     const auto tasks = queue_;  // a failing join empties queue_ (record_join_failure())
@@ -302,6 +303,7 @@ void DCSlam::take_restore_point() {
   point.steps_in_closed_maps = steps_in_closed_maps_;
   point.localised_base = localised_base_;
   point.online_localisations = online_localisations_;
+  point.localisation = pending_localisation();
   point.first_join = joins_created_;
   // The joins push_and_merge() will queue for the new local map (one leaf).
   int leaves = 1;
@@ -335,6 +337,7 @@ void DCSlam::roll_back(RestorePoint point) {
   steps_in_closed_maps_ = point.steps_in_closed_maps;
   localised_base_ = point.localised_base;
   online_localisations_ = point.online_localisations;
+  resume_localisation(std::move(point.localisation));
   joins_created_ = point.first_join;
   stats_.steps.resize(point.stats_steps);
   if (!stats_.steps.empty()) stats_.steps.back() = point.last_step;
@@ -1022,9 +1025,9 @@ Estimate DCSlam::estimate() const {
 }
 
 // RJC's tries for a localisation (a join's: RjcOptions::max_tries, 100). A closed local map
-// is small, and a localisation runs within one step: at 100, one on Victoria Park (s = 10 m)
-// took 3 ms, over 4x D&C's worst step without it; at 20, 1 ms, with the same online poses
-// (docs/divide_and_conquer.md, "The online pose on places seen again").
+// is small: at 100, one on Victoria Park (s = 10 m) took 3 ms, over 4x D&C's worst step
+// without it; at 20, 1 ms, with the same online poses (docs/divide_and_conquer.md, "The online
+// pose on places seen again").
 namespace {
 constexpr int kLocalisationMaxTries = 20;
 }  // namespace
@@ -1032,7 +1035,7 @@ constexpr int kLocalisationMaxTries = 20;
 // The oldest complete map is the leftmost leaf of the stack's tree of pending joins; the
 // chain between it and `closed` is every complete map after it, in order, as pose() composes
 // them. Each map's robot is independent of the others', as their data are.
-std::optional<Vec3> DCSlam::localise_closed_map(const Node& closed) const {
+std::optional<LocalisationInputs> DCSlam::localisation_inputs(const Node& closed) const {
   std::vector<std::shared_ptr<const GaussianMap>> chain;
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -1047,24 +1050,85 @@ std::optional<Vec3> DCSlam::localise_closed_map(const Node& closed) const {
     for (const auto& node : stack_) collect(*node);
   }
   if (chain.empty()) return std::nullopt;
-  std::vector<PoseLink> between;
+  LocalisationInputs inputs;
+  inputs.oldest = chain.front();
   for (std::size_t k = 1; k < chain.size(); ++k) {
-    between.push_back(PoseLink{chain[k]->robot(), chain[k]->P().topLeftCorner<3, 3>()});
+    inputs.between.push_back(PoseLink{chain[k]->robot(), chain[k]->P().topLeftCorner<3, 3>()});
   }
-  std::vector<Eigen::Index> tentative;
+  inputs.newest = closed.map;
   const std::vector<std::int64_t>& ids = closed.map->ids();
   for (const TentativeFeature& feature : closed.tentative) {
     const auto at = std::find(ids.begin(), ids.end(), feature.id);
-    if (at != ids.end()) tentative.push_back(at - ids.begin());
+    if (at != ids.end()) inputs.left_out.push_back(at - ids.begin());
   }
-  JoinOptions options = join_options_of(config_);
+  inputs.max_sigma = *config_.online_localisation_sigma;
   // A stream of its own, apart from every join's (join_options()).
-  options.rjc.seed = config_.seed ^ (0xD1B54A32D192ED03ULL * static_cast<std::uint64_t>(closed_local_maps_));
+  inputs.options =
+      localisation_options(config_.seed ^ (0xD1B54A32D192ED03ULL * static_cast<std::uint64_t>(closed_local_maps_)));
+  return inputs;
+}
+
+JoinOptions DCSlam::localisation_options(std::uint64_t seed) const {
+  JoinOptions options = join_options_of(config_);
+  options.rjc.seed = seed;
   options.rjc.max_tries = kLocalisationMaxTries;
-  const std::optional<LocalisedPose> localised = localise_against(*chain.front(), between, *closed.map, tentative,
-                                                                       *config_.online_localisation_sigma, options);
-  if (!localised) return std::nullopt;
-  return localised->pose;
+  return options;
+}
+
+void DCSlam::begin_localisation(const Node& closed, std::int64_t closed_steps) {
+  if (localisation_) {
+    localisation_->finish();
+    take_localisation();
+  }
+  const std::optional<Vec3> carried =
+      localised_base_ ? std::optional<Vec3>(compose(*localised_base_, closed.map->robot())) : std::nullopt;
+  std::optional<LocalisationInputs> inputs = localisation_inputs(closed);
+  if (!inputs) {
+    localised_base_.reset();
+    return;
+  }
+  localisation_ = std::make_unique<MapLocalisation>(std::move(*inputs));
+  localisation_budgets_.clear();
+  if (!config_.amortize && !config_.threaded_joins) {
+    localisation_->finish();
+    take_localisation();
+    return;
+  }
+  localised_base_ = carried;
+  localisation_deadline_ = steps_ + std::max<std::int64_t>(1, closed_steps / 2);
+}
+
+void DCSlam::advance_localisation() {
+  if (!localisation_) return;
+  const std::int64_t steps_left = std::max<std::int64_t>(1, localisation_deadline_ - steps_);
+  const std::int64_t remaining = localisation_->remaining_work();
+  const std::int64_t budget = std::max<std::int64_t>(1, (remaining + steps_left - 1) / steps_left);
+  localisation_budgets_.push_back(budget);
+  localisation_->advance(budget);
+  if (localisation_->done()) take_localisation();
+}
+
+void DCSlam::take_localisation() {
+  const std::optional<LocalisedPose>& result = localisation_->result();
+  localised_base_ = result ? std::optional<Vec3>(result->pose) : std::nullopt;
+  online_localisations_ += result ? 1 : 0;
+  localisation_.reset();
+  localisation_budgets_.clear();
+}
+
+std::optional<DCSlam::PendingLocalisation> DCSlam::pending_localisation() const {
+  if (!localisation_) return std::nullopt;
+  return PendingLocalisation{localisation_->inputs(), localisation_deadline_, localisation_budgets_};
+}
+
+void DCSlam::resume_localisation(std::optional<PendingLocalisation> pending) {
+  localisation_.reset();
+  localisation_budgets_.clear();
+  if (!pending) return;
+  localisation_ = std::make_unique<MapLocalisation>(std::move(pending->inputs));
+  localisation_deadline_ = pending->deadline_step;
+  localisation_budgets_ = std::move(pending->budgets);
+  for (const std::int64_t budget : localisation_budgets_) localisation_->advance(budget);
 }
 
 Vec3 DCSlam::node_robot(const Node& node) const {
@@ -1112,6 +1176,7 @@ const RunStats& DCSlam::stats() const {
   stats_.counters["joins_finished"] = static_cast<double>(finished);
   stats_.counters["stack_depth"] = static_cast<double>(stack_.size());
   stats_.counters["online_localisations"] = static_cast<double>(online_localisations_);
+  stats_.counters["localisation_under_way"] = localisation_ ? 1.0 : 0.0;
   // The real joins' decisions left to the next join (join_alternatives.hpp): weak joins', large
   // joins' doubtful pairs; the final fold's are not counted.
   double weak_joins = 0.0, doubtful_joins = 0.0, alternatives_taken = 0.0;

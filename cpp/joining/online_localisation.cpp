@@ -5,8 +5,6 @@
 
 #include <Eigen/Cholesky>
 
-#include "dcslam/joining/join_association.hpp"
-#include "dcslam/joining/join_frame.hpp"
 
 namespace dcslam {
 
@@ -32,56 +30,116 @@ PoseLink compose_chain(const std::vector<PoseLink>& between) {
 }
 
 // `newest` moved through the chain into oldest's robot frame: its robot and its kept
-// features, with the covariance of the chain and of newest together (first order).
+// features, with the covariance of the chain and of newest together (first order). The
+// Jacobian of newest's part is block diagonal (its robot's 3 x 3, each feature's rotation), so
+// J Sigma J' costs O(n^2) for n kept rows, not the O(n^3) of a dense product.
 GaussianMap moved_through_chain(const PoseLink& chain, const GaussianMap& newest, const std::vector<Index>& kept) {
   const auto p = static_cast<Index>(kept.size());
   GaussianMap moved = GaussianMap::uninitialized(p);
-  // J maps [chain (3); newest's robot (3); its kept features (2 each)] to the moved state.
-  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(moved.dim(), 6 + 2 * p);
-  Mat3 J_chain, J_robot;
-  moved.x().head<3>() = compose(chain.mean, newest.robot(), &J_chain, &J_robot);
-  J.block<3, 3>(0, 0) = J_chain;
-  J.block<3, 3>(0, 3) = J_robot;
-  for (Index k = 0; k < p; ++k) {
-    Mat23 J_pose;
-    Mat2 J_point;
-    const Index row = GaussianMap::feature_offset(k);
-    moved.x().segment<2>(row) = transform_point(chain.mean, newest.feature(kept[static_cast<std::size_t>(k)]), &J_pose, &J_point);
-    J.block<2, 3>(row, 0) = J_pose;
-    J.block<2, 2>(row, 6 + 2 * k) = J_point;
-    moved.ids()[static_cast<std::size_t>(k)] = newest.ids()[static_cast<std::size_t>(kept[static_cast<std::size_t>(k)])];
-  }
-  // The covariance of [chain; newest's robot and kept features]: the chain is independent.
+  const Index dim = moved.dim();
+  Eigen::MatrixXd J_chain(dim, 3);  // of every moved element with respect to the chain
   std::vector<Index> rows{0, 1, 2};
-  for (Index f : kept) {
+  Mat3 J_robot_chain, J_robot;
+  Mat2 J_point = Mat2::Identity();
+  moved.x().head<3>() = compose(chain.mean, newest.robot(), &J_robot_chain, &J_robot);
+  J_chain.topRows<3>() = J_robot_chain;
+  for (Index k = 0; k < p; ++k) {
+    const Index f = kept[static_cast<std::size_t>(k)];
+    const Index row = GaussianMap::feature_offset(k);
+    Mat23 J_pose;
+    moved.x().segment<2>(row) = transform_point(chain.mean, newest.feature(f), &J_pose, &J_point);
+    J_chain.middleRows<2>(row) = J_pose;
+    moved.ids()[static_cast<std::size_t>(k)] = newest.ids()[static_cast<std::size_t>(f)];
     rows.push_back(GaussianMap::feature_offset(f));
     rows.push_back(GaussianMap::feature_offset(f) + 1);
   }
-  const auto n = static_cast<Index>(rows.size());
-  Eigen::MatrixXd sigma = Eigen::MatrixXd::Zero(3 + n, 3 + n);
-  sigma.topLeftCorner<3, 3>() = chain.covariance;
-  sigma.bottomRightCorner(n, n) = newest.P()(rows, rows);
-  moved.P() = J * sigma * J.transpose();
+  // J_n P_n J_n' block by block (every feature's block is the chain's rotation): the rows
+  // transformed, then, as J_n (J_n P_n)' is its transpose, the rows of the transpose; then the
+  // chain's own J_c C J_c' (independent of newest).
+  const auto transform_rows = [&](Eigen::MatrixXd& M) {
+    M.topRows<3>() = (J_robot * M.topRows<3>()).eval();
+    for (Index k = 0; k < p; ++k) {
+      const Index row = GaussianMap::feature_offset(k);
+      M.middleRows<2>(row) = (J_point * M.middleRows<2>(row)).eval();
+    }
+  };
+  Eigen::MatrixXd P = newest.P()(rows, rows);
+  transform_rows(P);
+  P.transposeInPlace();
+  transform_rows(P);
+  moved.P() = P + J_chain * chain.covariance * J_chain.transpose();
   return moved;
 }
 
 }  // namespace
 
-std::optional<LocalisedPose> localise_against(const GaussianMap& oldest, const std::vector<PoseLink>& between,
-                                              const GaussianMap& newest, const std::vector<Index>& left_out,
-                                              double max_sigma, const JoinOptions& options) {
+MapLocalisation::MapLocalisation(LocalisationInputs inputs) : inputs_(std::move(inputs)) {}
+
+void MapLocalisation::move() {
+  const GaussianMap& newest = *inputs_.newest;
   std::vector<Index> kept;
   for (Index f = 0; f < newest.num_features(); ++f) {
-    if (std::find(left_out.begin(), left_out.end(), f) == left_out.end()) kept.push_back(f);
+    if (std::find(inputs_.left_out.begin(), inputs_.left_out.end(), f) == inputs_.left_out.end()) kept.push_back(f);
   }
-  if (kept.empty() || oldest.num_features() == 0) return std::nullopt;
-  const GaussianMap moved = moved_through_chain(compose_chain(between), newest, kept);
-  if (largest_std(moved.P().topLeftCorner<2, 2>()) > max_sigma) return std::nullopt;
-  const JoinFrame frame(oldest, moved);
-  const std::vector<std::pair<Index, Index>> pairs =
-      options.association == JoinAssociation::Known ? associate_by_id(oldest, moved) : associate_maps(frame, options).pairs;
-  if (static_cast<int>(pairs.size()) < kMinLocalisationPairs) return std::nullopt;
+  stage_ = Stage::Done;
+  if (kept.empty() || inputs_.oldest->num_features() == 0) return;
+  moved_ = std::make_unique<GaussianMap>(moved_through_chain(compose_chain(inputs_.between), newest, kept));
+  if (largest_std(moved_->P().topLeftCorner<2, 2>()) > inputs_.max_sigma) return;
+  frame_ = std::make_unique<JoinFrame>(*inputs_.oldest, *moved_);
+  if (inputs_.options.association == JoinAssociation::Known) {
+    condition(associate_by_id(*inputs_.oldest, *moved_));
+    return;
+  }
+  associator_ = std::make_unique<JoinAssociator>(*frame_, inputs_.options);
+  stage_ = Stage::Associate;
+}
 
+std::int64_t MapLocalisation::step(std::int64_t budget) {
+  switch (stage_) {
+    case Stage::Move: {
+      const auto p = static_cast<std::int64_t>(inputs_.newest->num_features());
+      move();
+      return (2 * p + 3) * (2 * p + 3);
+    }
+    case Stage::Associate: {
+      const std::int64_t spent = associator_->advance(budget);
+      if (associator_->done()) stage_ = Stage::Condition;
+      return std::max<std::int64_t>(1, spent);
+    }
+    case Stage::Condition: {
+      condition(associator_->result().pairs);
+      const auto r = static_cast<std::int64_t>(associator_->result().pairs.size());
+      return 8 * r * r * r + 1;
+    }
+    case Stage::Done:
+      break;
+  }
+  return 0;
+}
+
+std::int64_t MapLocalisation::remaining_work() const {
+  const auto p = static_cast<std::int64_t>(inputs_.newest->num_features());
+  const std::int64_t condition_work = 8 * p * p * p;
+  switch (stage_) {
+    case Stage::Move:
+      // The association's work is unknown until the candidates are: a join's of p features.
+      return (2 * p + 3) * (2 * p + 3) + condition_work + p * p * p;
+    case Stage::Associate:
+      return associator_->remaining_work() + condition_work;
+    case Stage::Condition:
+      return condition_work;
+    case Stage::Done:
+      break;
+  }
+  return 0;
+}
+
+void MapLocalisation::condition(const std::vector<std::pair<Index, Index>>& pairs) {
+  stage_ = Stage::Done;
+  if (static_cast<int>(pairs.size()) < kMinLocalisationPairs) return;
+  const GaussianMap& oldest = *inputs_.oldest;
+  const GaussianMap& moved = *moved_;
+  const JoinFrame& frame = *frame_;
   // Condition the moved robot g = R1 ⊕ s_R on the constraints h_a = f_i - R1 ⊕ s_j = 0:
   // g - C_gh S_h^-1 h, with C_gh and S_h from the two maps' covariances (independent).
   const auto r = static_cast<Index>(pairs.size());
@@ -108,10 +166,20 @@ std::optional<LocalisedPose> localise_against(const GaussianMap& oldest, const s
                              J_second_robot * P2.block<3, 2>(0, GaussianMap::feature_offset(j)) * frame.rotation().transpose();
   }
   const Eigen::LLT<Eigen::MatrixXd> factor(S);
-  if (factor.info() != Eigen::Success) return std::nullopt;
+  if (factor.info() != Eigen::Success) return;
   Vec3 pose = frame.moved_second_robot() - C * factor.solve(h);
   pose.z() = wrap_angle(pose.z());
-  return LocalisedPose{pose, static_cast<int>(r)};
+  result_ = LocalisedPose{pose, static_cast<int>(r)};
+}
+
+std::optional<LocalisedPose> localise_against(const GaussianMap& oldest, const std::vector<PoseLink>& between,
+                                              const GaussianMap& newest, const std::vector<Index>& left_out,
+                                              double max_sigma, const JoinOptions& options) {
+  // Borrowed, not owned: the maps outlive this call.
+  const auto borrow = [](const GaussianMap& map) { return std::shared_ptr<const GaussianMap>(&map, [](const GaussianMap*) {}); };
+  MapLocalisation localisation(LocalisationInputs{borrow(oldest), between, borrow(newest), left_out, max_sigma, options});
+  localisation.finish();
+  return localisation.result();
 }
 
 }  // namespace dcslam

@@ -2,6 +2,7 @@
 // directly: every function of the stacked state differentiated by central differences, the
 // conditional mean g - J_g Σ J_h' (J_h Σ J_h')^-1 h computed as one dense solve.
 #include <limits>
+#include <memory>
 #include <random>
 #include <vector>
 
@@ -96,6 +97,54 @@ TEST(OnlineLocalisation, EqualsTheJointGaussianConditionedOnThePairsByCentralDif
     EXPECT_LT((localised->pose.head<2>() - expected.head<2>()).norm(), 1e-6) << "trial " << trial;
     EXPECT_NEAR(wrap_angle(localised->pose.z() - expected.z()), 0.0, 1e-6) << "trial " << trial;
   }
+}
+
+// An amortized D&C spreads a localisation over steps: any slicing gives the one-go result.
+TEST(OnlineLocalisation, InAnySlicesItIsTheLocalisationRunAtOnce) {
+  std::mt19937_64 rng(19);
+  std::normal_distribution<double> normal;
+  int localised = 0;
+  for (int trial = 0; trial < 6; ++trial) {
+    std::vector<std::int64_t> old_ids;
+    for (std::int64_t id = 0; id < 40; ++id) old_ids.push_back(id);
+    GaussianMap oldest = random_map(rng, old_ids);
+    oldest.P() *= 0.01;
+    PoseLink link{Vec3(2 * normal(rng), 2 * normal(rng), 0.3 * normal(rng)), 1e-4 * Mat3::Identity()};
+    // The newest map sees 20 of oldest's features from its base, oldest's robot ⊕ link (new ids:
+    // association without ids has to find them).
+    const Vec3 base = compose(oldest.robot(), link.mean);
+    GaussianMap newest;
+    for (Index k = 0; k < 20; ++k) {
+      const Vec2 seen = transform_point(invert(base), oldest.feature(2 * k)) + 0.01 * Vec2(normal(rng), normal(rng));
+      newest.append_feature(seen, 100 + k);
+    }
+    newest.x().head<3>() = Vec3(normal(rng), normal(rng), 0.1 * normal(rng));
+    newest.P() = 1e-4 * Eigen::MatrixXd::Identity(newest.dim(), newest.dim());
+    JoinOptions options;
+    options.association = JoinAssociation::Rjc;
+    options.rjc.seed = static_cast<std::uint64_t>(trial);
+    const auto shared = [](const GaussianMap& map) { return std::make_shared<const GaussianMap>(map); };
+    const LocalisationInputs inputs{shared(oldest), {link}, shared(newest), {2}, kAlways, options};
+    MapLocalisation at_once(inputs);
+    at_once.finish();
+    MapLocalisation sliced(inputs);
+    std::uniform_int_distribution<std::int64_t> budget(1, 50);
+    int steps = 0;
+    while (!sliced.done()) {
+      ASSERT_GT(sliced.remaining_work(), 0);
+      sliced.advance(budget(rng));
+      ++steps;
+    }
+    EXPECT_GT(steps, 3) << "trial " << trial;
+    EXPECT_EQ(sliced.remaining_work(), 0);
+    ASSERT_EQ(sliced.result().has_value(), at_once.result().has_value()) << "trial " << trial;
+    if (!at_once.result()) continue;
+    ++localised;
+    EXPECT_EQ(sliced.result()->pairs, at_once.result()->pairs);
+    EXPECT_TRUE(sliced.result()->pose == at_once.result()->pose) << "trial " << trial;
+    EXPECT_GE(at_once.result()->pairs, 17) << "trial " << trial;  // 19 kept features, all in oldest
+  }
+  EXPECT_GE(localised, 5);
 }
 
 TEST(OnlineLocalisation, NoPairNoLocalisation) {

@@ -24,9 +24,11 @@ CASES = {
     # the kept local maps and tree shape go into the checkpoint: the resumed estimate()
     # re-linearises the same tree
     "dc_tree": ("dc", dict(tree_relinearisation=2)),
-    # the base each closed local map was localised at goes into the checkpoint: the resumed
-    # online poses are the uninterrupted run's
-    "dc_localised": ("dc", dict(online_localisation_sigma=1.0)),
+    # the base each closed local map was localised at, and the localisation under way at the
+    # split (spread over the steps after its closure), go into the checkpoint: the resumed
+    # online poses are the uninterrupted run's. Local maps of 60 features last long enough
+    # (about 6 steps) for a localisation to span steps.
+    "dc_localised": ("dc", dict(online_localisation_sigma=1.0, local_map_features=60)),
 }
 
 
@@ -37,7 +39,7 @@ def scene():
 
 def make_filter(case):
     name, options = CASES[case]
-    config = dcslam.SlamConfig(local_map_features=20, **options)
+    config = dcslam.SlamConfig(**{"local_map_features": 20, **options})
     return dcslam.EkfSlam(config) if name == "ekf" else dcslam.DCSlam(config)
 
 
@@ -67,6 +69,17 @@ def pending_join_step(slam):
         if join["step_created"] >= SPLIT and join["step_finished"] - join["step_created"] >= 2:
             return join["step_created"] + 1
     raise AssertionError("no join in progress after the split")
+
+
+def pending_localisation_step(case, sim):
+    """The first step at or after SPLIT after which a localisation is under way."""
+    slam = make_filter(case)
+    run_steps(slam, sim, 0, SPLIT)
+    for step in range(SPLIT, STEPS):
+        if slam.stats.counters["localisation_under_way"]:
+            return step
+        run_steps(slam, sim, step, step + 1)
+    raise AssertionError("no localisation under way after the split")
 
 
 @pytest.fixture(scope="module")
@@ -104,11 +117,14 @@ RESUME = textwrap.dedent("""
 @pytest.mark.parametrize("case", list(CASES))
 def test_a_filter_resumed_in_another_process_is_bitwise_the_uninterrupted_run(sim, uninterrupted, case, tmp_path):
     reference, reference_ids, reference_estimate, reference_trajectory = uninterrupted[case]
-    split = pending_join_step(reference) if case == "dc_amortized" else SPLIT
+    split = {"dc_amortized": lambda: pending_join_step(reference),
+             "dc_localised": lambda: pending_localisation_step(case, sim)}.get(case, lambda: SPLIT)()
     slam = make_filter(case)
     first_ids = run_steps(slam, sim, 0, split)
     if case == "dc_amortized":
         assert any(j["step_created"] < split and j["step_finished"] == -1 for j in slam.stats.joins)
+    if case == "dc_localised":
+        assert slam.stats.counters["localisation_under_way"] == 1
     path = tmp_path / "filter.pkl"
     with open(path, "wb") as file:
         pickle.dump(slam, file)

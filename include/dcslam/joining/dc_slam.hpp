@@ -149,6 +149,13 @@ class DCSlam : public SlamFilter {
   // dc_slam.cpp.
   void raise_join_failure_if_any();
   [[noreturn]] void raise_join_failure(std::unique_lock<std::mutex>& lock);
+  // A localisation under way (amortized or threaded joins spread it over the steps after its
+  // closure), as what redoes it: its inputs and the budget of every advance so far.
+  struct PendingLocalisation {
+    LocalisationInputs inputs;
+    std::int64_t deadline_step = 0;
+    std::vector<std::int64_t> budgets;
+  };
   // What an update() that closes the local map and queues joins changes, as it was before:
   // the local map before the update and everything the closure and its joins touch. Kept
   // until every join the closure queued is complete (cheap when nothing fails: the stack's
@@ -171,6 +178,7 @@ class DCSlam : public SlamFilter {
     LeafLog open_log;  // of the local map before the update
     std::optional<Vec3> localised_base;
     std::int64_t online_localisations = 0;
+    std::optional<PendingLocalisation> localisation;
   };
   // The local map before an update that may close it (update()); moved into the restore point
   // if it does, else dropped by the next update.
@@ -189,10 +197,18 @@ class DCSlam : public SlamFilter {
   void roll_back(RestorePoint point);  // mutex_ held, the worker idle
   void complete(JoinTask& task);
   void worker_loop();
-  // The base of the local map that `closed` (not yet on the stack) hands over, localised
-  // against the stack's oldest complete map (SlamConfig::online_localisation_sigma); nullopt
-  // where it is left to the chain.
-  std::optional<Vec3> localise_closed_map(const Node& closed) const;
+  // The localisation of `closed` (not yet on the stack) against the stack's oldest complete
+  // map (SlamConfig::online_localisation_sigma); nullopt when the stack is empty.
+  std::optional<LocalisationInputs> localisation_inputs(const Node& closed) const;
+  JoinOptions localisation_options(std::uint64_t seed) const;  // a localisation's, RJC's stream `seed`
+  // At a closure: the localisation under way finished (it places the closed map's base), then
+  // `closed`'s started, run at once with immediate joins and spread over the next
+  // max(1, closed_steps / 2) steps otherwise, the base carried from the last one meanwhile.
+  void begin_localisation(const Node& closed, std::int64_t closed_steps);
+  void advance_localisation();  // each update(), amortized or threaded
+  void take_localisation();     // localisation_ done: its result is the open map's base
+  std::optional<PendingLocalisation> pending_localisation() const;
+  void resume_localisation(std::optional<PendingLocalisation> pending);  // redoes its budgets
   // Options of join `index`, whose first map's robot has pose id `first_robot_id`.
   JoinOptions join_options(int index, std::int64_t first_robot_id) const;
   // The join of two adjacent nodes' maps (or of versions of them), with the tentative features
@@ -333,10 +349,13 @@ class DCSlam : public SlamFilter {
   std::int64_t closed_local_maps_ = 0;
   std::int64_t steps_in_closed_maps_ = 0;
   int joins_created_ = 0;
-  // The open local map's base in the global frame, from localise_closed_map() at the last
-  // closure; unset: pose() composes the stack's maps.
+  // The open local map's base in the global frame, from the last localisation (carried from
+  // the one before while it is under way); unset: pose() composes the stack's maps.
   std::optional<Vec3> localised_base_;
   std::int64_t online_localisations_ = 0;
+  std::unique_ptr<MapLocalisation> localisation_;  // under way
+  std::int64_t localisation_deadline_ = 0;
+  std::vector<std::int64_t> localisation_budgets_;
 
   mutable std::mutex mutex_;  // guards the stack, tasks, events and aliases (threaded mode)
   std::condition_variable work_ready_, work_done_;

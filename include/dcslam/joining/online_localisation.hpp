@@ -8,13 +8,19 @@
 // the local map's end pose is conditioned on those pairs: a robot-only join, O(p^3 + n) for a
 // local map of p features against a map of n. The maps stay as they are; only the pose the
 // next local map starts from is moved.
+#include <cstdint>
+#include <memory>
 #include <optional>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
 
 #include "dcslam/core/gaussian_map.hpp"
 #include "dcslam/core/geometry.hpp"
+#include "dcslam/core/resumable_work.hpp"
+#include "dcslam/joining/join_association.hpp"
+#include "dcslam/joining/join_frame.hpp"
 #include "dcslam/joining/join_options.hpp"
 
 namespace dcslam {
@@ -31,6 +37,17 @@ struct LocalisedPose {
   int pairs = 0;             // the pairs it was conditioned on
 };
 
+// One localisation's inputs, all fixed when its local map closes: kept to redo it from the
+// start (a restore point, a checkpoint).
+struct LocalisationInputs {
+  std::shared_ptr<const GaussianMap> oldest;
+  std::vector<PoseLink> between;
+  std::shared_ptr<const GaussianMap> newest;
+  std::vector<Eigen::Index> left_out;
+  double max_sigma = 0.0;
+  JoinOptions options;
+};
+
 // The pose of `newest`'s robot in `oldest`'s base frame, where newest's base sits at oldest's
 // robot ⊕ between[0] ⊕ ... ⊕ between[k-1], conditioned on the pairs that the join association
 // (`options`; by id in "known" mode) finds between oldest's features and newest's (the features
@@ -40,6 +57,39 @@ struct LocalisedPose {
 // position standard deviation (largest_std) above `max_sigma` [m], where the association
 // would be a loop closure at large uncertainty (the joins' work), or when fewer than 5 pairs
 // are found.
+//
+// Resumable (resumable_work.hpp), so that an amortized D&C spreads it over the steps after the
+// close as it spreads a join: the first step moves newest through the chain, the association
+// advances a slice a step (its own work units), the last step conditions the robot. The result
+// is the same however the work is sliced.
+class MapLocalisation : public ResumableWork<MapLocalisation> {
+ public:
+  explicit MapLocalisation(LocalisationInputs inputs);
+  MapLocalisation(const MapLocalisation&) = delete;
+  MapLocalisation& operator=(const MapLocalisation&) = delete;
+
+  std::int64_t step(std::int64_t budget);
+  bool done() const { return stage_ == Stage::Done; }
+  // An upper bound before the association has started; then the association's own estimate.
+  std::int64_t remaining_work() const;
+  // Valid once done().
+  const std::optional<LocalisedPose>& result() const { return result_; }
+  const LocalisationInputs& inputs() const { return inputs_; }
+
+ private:
+  enum class Stage { Move, Associate, Condition, Done };
+  void move();
+  void condition(const std::vector<std::pair<Eigen::Index, Eigen::Index>>& pairs);
+
+  LocalisationInputs inputs_;
+  Stage stage_ = Stage::Move;
+  std::unique_ptr<GaussianMap> moved_;  // the frame and the association refer to it
+  std::unique_ptr<JoinFrame> frame_;
+  std::unique_ptr<JoinAssociator> associator_;
+  std::optional<LocalisedPose> result_;
+};
+
+// MapLocalisation run at once.
 std::optional<LocalisedPose> localise_against(const GaussianMap& oldest, const std::vector<PoseLink>& between,
                                               const GaussianMap& newest, const std::vector<Eigen::Index>& left_out,
                                               double max_sigma, const JoinOptions& options);
