@@ -94,12 +94,23 @@ void MapLocalisation::move() {
   stage_ = Stage::Associate;
 }
 
+namespace {
+
+// Work in the association's units (about a multiply-add each; kPairingCovarianceUnits a
+// covariance block): moving a map of dimension d through the chain, two passes of 2 x 2 blocks
+// over its covariance and the chain's rank-3 term.
+std::int64_t move_work(std::int64_t d) { return 8 * d * d; }
+// Conditioning on r pairs: their joint covariance's blocks and its factor.
+std::int64_t condition_work(std::int64_t r) { return kPairingCovarianceUnits * r * (r + 1) / 2 + 8 * r * r * r / 3; }
+
+}  // namespace
+
 std::int64_t MapLocalisation::step(std::int64_t budget) {
   switch (stage_) {
     case Stage::Move: {
-      const auto p = static_cast<std::int64_t>(inputs_.newest->num_features());
+      const std::int64_t d = inputs_.newest->dim();
       move();
-      return (2 * p + 3) * (2 * p + 3);
+      return move_work(d);
     }
     case Stage::Associate: {
       const std::int64_t spent = associator_->advance(budget);
@@ -107,9 +118,9 @@ std::int64_t MapLocalisation::step(std::int64_t budget) {
       return std::max<std::int64_t>(1, spent);
     }
     case Stage::Condition: {
-      condition(associator_->result().pairs);
       const auto r = static_cast<std::int64_t>(associator_->result().pairs.size());
-      return 8 * r * r * r + 1;
+      condition(associator_->result().pairs);
+      return condition_work(r);
     }
     case Stage::Done:
       break;
@@ -119,15 +130,16 @@ std::int64_t MapLocalisation::step(std::int64_t budget) {
 
 std::int64_t MapLocalisation::remaining_work() const {
   const auto p = static_cast<std::int64_t>(inputs_.newest->num_features());
-  const std::int64_t condition_work = 8 * p * p * p;
   switch (stage_) {
     case Stage::Move:
-      // The association's work is unknown until the candidates are: a join's of p features.
-      return (2 * p + 3) * (2 * p + 3) + condition_work + p * p * p;
+      // The association's work is known once its candidates are: until then, its preparation's.
+      return move_work(inputs_.newest->dim()) +
+             kPairingCovarianceUnits * (static_cast<std::int64_t>(inputs_.oldest->num_features()) + 2 * p) +
+             condition_work(p);
     case Stage::Associate:
-      return associator_->remaining_work() + condition_work;
+      return associator_->remaining_work() + condition_work(p);
     case Stage::Condition:
-      return condition_work;
+      return condition_work(static_cast<std::int64_t>(associator_->result().pairs.size()));
     case Stage::Done:
       break;
   }

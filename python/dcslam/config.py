@@ -204,7 +204,7 @@ class SlamConfig:
             of a place seen again before the joins reach it. The maps and
             :meth:`~dcslam.DCSlam.estimate` are unchanged. Larger loops are left to the
             joins. 10 suited the simulated scenes and Victoria Park (whose online trajectory
-            it brings from 5.31 to 4.51 m RMS of the GPS, for 6 % more of D&C's work; with
+            it brings from 5.31 to 4.52 m RMS of the GPS, for 6 % more of D&C's work; with
             amortized or threaded joins each localisation is spread over the steps after its
             closure, so the worst step does not grow); ``math.inf``: always. ``None`` (default, the paper's D&C): the pose
             composes the stack's maps (docs/divide_and_conquer.md, "The online pose on places

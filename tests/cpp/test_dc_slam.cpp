@@ -1,4 +1,5 @@
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <map>
 #include <random>
@@ -374,16 +375,42 @@ TEST(DcSlam, ImmediateAmortizedAndThreadedAreBitwiseIdentical) {
   }
 }
 
-// Weak joins (join_alternatives.hpp) decide alike whichever way joins run, the worker thread
-// included: the simulator's small_loop_laps scene (seed 0), where a later join takes a weak
-// join's alternative.
-TEST(DcSlam, WeakJoinsDecideAlikeInEveryMode) {
+// A small square loop driven several times (160 steps, 10 % clutter, seed 0).
+Simulation small_loop_laps() {
   SimulationConfig scene;
   scene.trajectory = Trajectory::Loop;
   scene.steps = 160;
   scene.side_steps = 10;
   scene.clutter = 0.1;
-  const Simulation sim = simulate(scene);
+  return simulate(scene);
+}
+
+// Every step of `sim` into `dc` without ids; the ids update() returned, and `after_step` called
+// after each update.
+std::vector<std::int64_t> run_without_ids(DCSlam& dc, const Simulation& sim,
+                                          const std::function<void()>& after_step = [] {}) {
+  std::vector<std::int64_t> returned;
+  for (Eigen::Index k = 0; k < sim.odometry.rows(); ++k) {
+    dc.predict(sim.odometry.row(k).transpose(), sim.odometry_covariance);
+    const auto begin = sim.step_offsets[static_cast<std::size_t>(k)];
+    const auto count = sim.step_offsets[static_cast<std::size_t>(k) + 1] - begin;
+    std::vector<Mat2> R;
+    for (Eigen::Index m = begin; m < begin + count; ++m) {
+      R.push_back(Eigen::Map<const Eigen::Matrix<double, 2, 2, Eigen::RowMajor>>(sim.measurement_covariances.row(m).data()));
+    }
+    const MeasurementMatrix z = sim.measurements.middleRows(begin, count);
+    const std::vector<std::int64_t> step_ids = dc.update(z, R, nullptr);
+    returned.insert(returned.end(), step_ids.begin(), step_ids.end());
+    after_step();
+  }
+  return returned;
+}
+
+// Weak joins (join_alternatives.hpp) decide alike whichever way joins run, the worker thread
+// included: the simulator's small_loop_laps scene (seed 0), where a later join takes a weak
+// join's alternative.
+TEST(DcSlam, WeakJoinsDecideAlikeInEveryMode) {
+  const Simulation sim = small_loop_laps();
   std::vector<Estimate> results;
   std::vector<std::vector<std::int64_t>> ids;
   for (Mode mode : {Mode::Immediate, Mode::Amortized, Mode::Threaded}) {
@@ -397,19 +424,7 @@ TEST(DcSlam, WeakJoinsDecideAlikeInEveryMode) {
     config.amortize = mode == Mode::Amortized;
     config.threaded_joins = mode == Mode::Threaded;
     DCSlam dc(config);
-    std::vector<std::int64_t> returned;
-    for (Eigen::Index k = 0; k < sim.odometry.rows(); ++k) {
-      dc.predict(sim.odometry.row(k).transpose(), sim.odometry_covariance);
-      const auto begin = sim.step_offsets[static_cast<std::size_t>(k)];
-      const auto count = sim.step_offsets[static_cast<std::size_t>(k) + 1] - begin;
-      std::vector<Mat2> R;
-      for (Eigen::Index m = begin; m < begin + count; ++m) {
-        R.push_back(Eigen::Map<const Eigen::Matrix<double, 2, 2, Eigen::RowMajor>>(sim.measurement_covariances.row(m).data()));
-      }
-      const MeasurementMatrix z = sim.measurements.middleRows(begin, count);
-      const std::vector<std::int64_t> step_ids = dc.update(z, R, nullptr);
-      returned.insert(returned.end(), step_ids.begin(), step_ids.end());
-    }
+    const std::vector<std::int64_t> returned = run_without_ids(dc, sim);
     dc.finish_joins();
     int taken = 0;
     for (const JoinEvent& event : dc.joins()) taken += event.report.alternatives_taken;
@@ -423,6 +438,42 @@ TEST(DcSlam, WeakJoinsDecideAlikeInEveryMode) {
     EXPECT_TRUE((results[m].robot.array() == results[0].robot.array()).all());
     EXPECT_TRUE(results[m].covariance.size() == results[0].covariance.size() &&
                 (results[m].covariance.array() == results[0].covariance.array()).all());
+  }
+}
+
+// Without ids a localisation (its RJC) is resumable work that amortized and threaded joins
+// spread over the steps after its closure: it is seen under way between steps, it localises,
+// and the maps and ids stay those of the run without it. Also run under TSan: the
+// localisation reads the stack's maps while the worker joins them.
+TEST(DcSlamOnlineLocalisation, SpreadOverStepsWithoutIds) {
+  const Simulation sim = small_loop_laps();
+  for (const Mode mode : {Mode::Immediate, Mode::Amortized, Mode::Threaded}) {
+    SlamConfig config;
+    config.association = Association::Jcbb;
+    config.join_association = JoinAssociation::Rjc;
+    config.local_map_features = 60;  // local maps of several steps, so that a localisation spans some
+    config.amortize = mode == Mode::Amortized;
+    config.threaded_joins = mode == Mode::Threaded;
+    DCSlam plain(config);
+    const std::vector<std::int64_t> plain_ids = run_without_ids(plain, sim);
+    config.online_localisation_sigma = 10.0;
+    DCSlam localised(config);
+    int steps_under_way = 0;
+    const std::vector<std::int64_t> ids = run_without_ids(
+        localised, sim, [&] { steps_under_way += localised.stats().counters.at("localisation_under_way") > 0 ? 1 : 0; });
+    EXPECT_GT(localised.stats().counters.at("online_localisations"), 3.0) << mode_name(mode);
+    if (mode == Mode::Immediate) {
+      EXPECT_EQ(steps_under_way, 0);
+    } else {
+      EXPECT_GT(steps_under_way, 2) << mode_name(mode);
+    }
+    EXPECT_EQ(ids, plain_ids) << mode_name(mode);
+    plain.finish_joins();
+    localised.finish_joins();
+    const Estimate a = plain.estimate(), b = localised.estimate();
+    EXPECT_EQ(a.landmark_ids, b.landmark_ids) << mode_name(mode);
+    EXPECT_TRUE(a.covariance.size() == b.covariance.size() && (a.covariance.array() == b.covariance.array()).all())
+        << mode_name(mode);
   }
 }
 
