@@ -35,7 +35,7 @@ ConstrainedUpdate::ConstrainedUpdate(const GaussianMap& first, const GaussianMap
 
 // Columns of P H' (rows [all of m1 (d1); all of m2 (d2)]) and entries of h for the
 // constraints f_i - f'_j of the next pairs; O(n) a pair.
-std::int64_t ConstrainedUpdate::constrain_next_pairs() {
+std::int64_t ConstrainedUpdate::constrain_next_pairs(std::int64_t budget) {
   const GaussianMap& m1 = first_;
   const GaussianMap& m2 = second_;
   const Index d1 = m1.dim(), d2 = m2.dim();
@@ -48,7 +48,10 @@ std::int64_t ConstrainedUpdate::constrain_next_pairs() {
   auto PHt_first = gain_.topRows(d1);
   auto PHt_second = gain_.bottomRows(d2);
   Eigen::MatrixXd second_col(d2, 2);
-  const Index end = std::min<Index>(r, next_pair_ + join_cost::kPairsPerUnit);
+  const std::int64_t pair_work = join_cost::constrain(1, static_cast<std::int64_t>(gain_.rows()));
+  const Index batch = std::clamp<Index>(static_cast<Index>(budget / std::max<std::int64_t>(1, pair_work)), 1,
+                                        join_cost::kPairsPerUnit);
+  const Index end = std::min<Index>(r, next_pair_ + batch);
   for (Index k = next_pair_; k < end; ++k) {
     const auto [i, j] = pairs_[static_cast<std::size_t>(k)];
     const Index oi = GaussianMap::feature_offset(i), oj = GaussianMap::feature_offset(j);

@@ -150,7 +150,7 @@ std::int64_t MapJoin::step(std::int64_t budget) {
                                                       relinearisation_.second_x());
         spent += static_cast<std::int64_t>(second_->dim());
       }
-      spent += update_->constrain_next_pairs();
+      spent += update_->constrain_next_pairs(budget - spent);
       if (update_->constrained()) {
         update_->begin_factor();
         spent += join_cost::begin_factor(static_cast<std::int64_t>(pairs_.size()));

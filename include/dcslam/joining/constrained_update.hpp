@@ -46,7 +46,10 @@ class ConstrainedUpdate {
   ConstrainedUpdate(const ConstrainedUpdate&) = delete;
   ConstrainedUpdate& operator=(const ConstrainedUpdate&) = delete;
 
-  std::int64_t constrain_next_pairs();
+  // The columns of P H' of the next pairs: as many as `budget` pays for, at least one and at
+  // most join_cost::kPairsPerUnit (each pair's columns are independent, so any count gives the
+  // same result).
+  std::int64_t constrain_next_pairs(std::int64_t budget);
   bool constrained() const { return next_pair_ == static_cast<Eigen::Index>(pairs_.size()); }
   // S = H P H' from the rows of P H' (O(r^2)); the factorisation then runs a panel at a time,
   // ending with h whitened.
