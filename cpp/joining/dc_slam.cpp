@@ -198,7 +198,7 @@ std::vector<std::int64_t> DCSlam::update(const MeasurementsRef& z, const std::ve
   try {
     if (local_->map().num_features() >= config_.local_map_features) close_local_map();
     if (config_.amortize && !config_.threaded_joins) run_amortized_budget();
-    if (config_.amortize || config_.threaded_joins) advance_localisation();
+    if (!joins_immediate()) advance_localisation();
   } catch (const JoinFailed&) {
     std::unique_lock<std::mutex> lock(mutex_);
     raise_join_failure(lock);
@@ -269,7 +269,7 @@ void DCSlam::close_local_map() {
   }
   if (config_.online_localisation_sigma) begin_localisation(*node, closed_steps);
   push_and_merge(std::move(node));
-  if (!config_.amortize && !config_.threaded_joins) {
+  if (joins_immediate()) {
     const auto tasks = queue_;  // a failing join empties queue_ (record_join_failure())
     for (const auto& task : tasks) work_on(*task, std::numeric_limits<std::int64_t>::max());
     queue_.clear();
@@ -1089,7 +1089,7 @@ void DCSlam::begin_localisation(const Node& closed, std::int64_t closed_steps) {
   }
   localisation_ = std::make_unique<MapLocalisation>(std::move(*inputs));
   localisation_budgets_.clear();
-  if (!config_.amortize && !config_.threaded_joins) {
+  if (joins_immediate()) {
     localisation_->finish();
     take_localisation();
     return;

@@ -109,12 +109,13 @@ Estimate run_ekf(const std::vector<SlamStep>& run) {
 
 enum class Mode { Immediate, Amortized, Threaded };
 
-SlamConfig mode_config(int p, Mode mode) {
-  SlamConfig config = linear_config(p);
+SlamConfig in_mode(SlamConfig config, Mode mode) {
   config.amortize = mode == Mode::Amortized;
   config.threaded_joins = mode == Mode::Threaded;
   return config;
 }
+
+SlamConfig mode_config(int p, Mode mode) { return in_mode(linear_config(p), mode); }
 
 const char* mode_name(Mode mode) {
   switch (mode) {
@@ -421,9 +422,7 @@ TEST(DcSlam, WeakJoinsDecideAlikeInEveryMode) {
     // they leave unexplained beside mapped or tentative features, as they did then.
     config.new_feature_margin = std::numeric_limits<double>::infinity();
     config.new_feature_beside_tentative = false;
-    config.amortize = mode == Mode::Amortized;
-    config.threaded_joins = mode == Mode::Threaded;
-    DCSlam dc(config);
+    DCSlam dc(in_mode(config, mode));
     const std::vector<std::int64_t> returned = run_without_ids(dc, sim);
     dc.finish_joins();
     int taken = 0;
@@ -452,8 +451,7 @@ TEST(DcSlamOnlineLocalisation, SpreadOverStepsWithoutIds) {
     config.association = Association::Jcbb;
     config.join_association = JoinAssociation::Rjc;
     config.local_map_features = 60;  // local maps of several steps, so that a localisation spans some
-    config.amortize = mode == Mode::Amortized;
-    config.threaded_joins = mode == Mode::Threaded;
+    config = in_mode(config, mode);
     DCSlam plain(config);
     const std::vector<std::int64_t> plain_ids = run_without_ids(plain, sim);
     config.online_localisation_sigma = 10.0;

@@ -132,6 +132,8 @@ class DCSlam : public SlamFilter {
     std::vector<std::int64_t> budgets;
   };
 
+  // Neither amortized nor threaded: every join runs at the closure that queues it.
+  bool joins_immediate() const { return !config_.amortize && !config_.threaded_joins; }
   void close_local_map();
   void push_and_merge(std::shared_ptr<Node> node);
   void run_amortized_budget();

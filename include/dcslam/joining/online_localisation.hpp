@@ -70,7 +70,8 @@ class MapLocalisation : public ResumableWork<MapLocalisation> {
 
   std::int64_t step(std::int64_t budget);
   bool done() const { return stage_ == Stage::Done; }
-  // An upper bound before the association has started; then the association's own estimate.
+  // Before the association has started, the move, its preparation and the conditioning of
+  // every kept feature; then the association's own estimate and the conditioning.
   std::int64_t remaining_work() const;
   // Valid once done().
   const std::optional<LocalisedPose>& result() const { return result_; }
