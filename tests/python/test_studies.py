@@ -1,13 +1,18 @@
 """The studies' command lines (studies/), run as a user runs them: short runs on small inputs,
 checking what they print and the JSON they write. Their numbers are not asserted here; the
-solvers behind them are tested as oracles (test_batch_least_squares.py, test_dense_join.py)."""
+solvers behind them are tested as oracles (test_batch_least_squares.py, test_dense_join.py),
+and the clustering ceiling's oracle against the simulator's ids."""
 
+import importlib.util
 import json
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 import dcslam
+import dcslam.evaluation
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -185,3 +190,32 @@ def test_duplicate_diagnosis_classifies_the_small_joins_wrong_pairs():
     assert sum(int(r[8]) for r in rows) == wrong and sum(int(r[7]) for r in rows) == right
     refused = run_study("duplicate_diagnosis.py", "small_loop_laps", "--wrong-pairs", 8, "--filter", "ekf", check=False)
     assert refused.returncode != 0 and "the EKF has none" in refused.stderr
+
+
+def load_study(script: str):
+    spec = importlib.util.spec_from_file_location(script.removesuffix(".py"), ROOT / "studies" / script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_clustering_ceiling_is_exact_on_nearly_noise_free_measurements():
+    # With 0.01 % range noise and no clutter, every measurement is nearest to its own landmark
+    # (these scenes' landmarks are centimetres apart at the least), and a gate at 1 - 1e-9 keeps
+    # every draw of the noise, so both oracles must return the simulator's ids themselves: the
+    # independent check of the study's geometry.
+    study = load_study("clustering_ceiling.py")
+    sim = dcslam.revisit_scenario("small_loop_laps", 3, clutter=0.0, range_sigma_fraction=1e-4,
+                                  bearing_sigma=1e-5)
+    for method in study.METHODS:
+        ids = study.oracle_ids(sim, method, 1 - 1e-9)
+        np.testing.assert_array_equal(ids, sim.true_ids)
+    scores = dcslam.evaluation.association_scores(sim.true_ids, study.oracle_ids(sim, "assignment", 1 - 1e-9))
+    assert scores.pairwise_precision == scores.pairwise_recall == scores.features_per_landmark == 1.0
+
+
+def test_clustering_ceiling_command_line():
+    printed = run_study("clustering_ceiling.py", "--seeds", 1, "--scenarios", "small_loop_laps").stdout
+    rows = [line for line in printed.splitlines() if line.startswith("| small_loop_laps")]
+    assert [row.split("|")[2].strip() for row in rows] == ["nearest", "assignment"]
+    assert run_study("clustering_ceiling.py", "--scenarios", "nowhere", check=False).returncode == 2
