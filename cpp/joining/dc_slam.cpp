@@ -706,6 +706,15 @@ TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settle
   // Same inputs and options as the real join: the same result, computed on the side.
   const TreeMap first = materialize(*node.left, settled, ids);
   const TreeMap second = materialize(*node.right, settled, ids);
+  ++estimate_pending_joins_;
+  for (MaterializedJoin& made : materialized_) {
+    if (made.node.lock() != node.node) continue;
+    for (const JoinIds& join_ids : made.settled) record_ids(join_ids, ids.aliases, ids.sightings);
+    settled.insert(settled.end(), made.settled.begin(), made.settled.end());
+    made.used_by = estimate_calls_;
+    ++estimate_pending_joins_reused_;
+    return made.map;
+  }
   const Node& left = *node.left->node;
   const Node& right = *node.right->node;
   const std::unique_ptr<DecidingJoin> join = make_join(first, second, left, right, node.index);
@@ -718,12 +727,15 @@ TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settle
                           "; the filter is unchanged until it runs that join (finish_joins() runs it now)");
   }
   DecidedJoin decided = join->take_result(tentative_of(left, right), node.index);
+  MaterializedJoin made{node.node, TreeMap(), decided.settled, estimate_calls_};
   for (const JoinIds& join_ids : decided.settled) record_ids(join_ids, ids.aliases, ids.sightings);
-  settled.insert(settled.end(), decided.settled.begin(), decided.settled.end());
   JoinIds merges;
   merges.merged = merge_after_join(left.leaves + right.leaves, decided, ids.aliases, ids.sightings);
-  if (!merges.merged.empty()) settled.push_back(std::move(merges));
-  return decided.tree_map();
+  if (!merges.merged.empty()) made.settled.push_back(std::move(merges));
+  settled.insert(settled.end(), made.settled.begin(), made.settled.end());
+  made.map = decided.tree_map();
+  materialized_.push_back(made);
+  return made.map;
 }
 
 std::vector<std::pair<std::int64_t, std::int64_t>> DCSlam::merge_after_join(int leaves, DecidedJoin& decided,
@@ -976,6 +988,7 @@ Estimate DCSlam::estimate() const {
   // the fold is decided by the rest of the fold; the last one's result is final.
   std::vector<FoldInput> inputs;
   SettledIds settled_ids{merged, state.sightings};
+  ++estimate_calls_;
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     FoldInput input;
     input.map = materialize(**it, input.settled, settled_ids);
@@ -983,6 +996,10 @@ Estimate DCSlam::estimate() const {
     input.leaves = (*it)->node->leaves;
     inputs.push_back(std::move(input));
   }
+  // Only joins still pending at this call can be pending at the next.
+  materialized_.erase(std::remove_if(materialized_.begin(), materialized_.end(),
+                                     [&](const MaterializedJoin& made) { return made.used_by != estimate_calls_; }),
+                      materialized_.end());
   FoldAssociations associations;
   state = fold(std::move(state), inputs, 0, associations);
   inputs.clear();
@@ -1177,6 +1194,8 @@ const RunStats& DCSlam::stats() const {
   stats_.counters["stack_depth"] = static_cast<double>(stack_.size());
   stats_.counters["online_localisations"] = static_cast<double>(online_localisations_);
   stats_.counters["localisation_under_way"] = localisation_ ? 1.0 : 0.0;
+  stats_.counters["estimate_pending_joins"] = static_cast<double>(estimate_pending_joins_);
+  stats_.counters["estimate_pending_joins_reused"] = static_cast<double>(estimate_pending_joins_reused_);
   // The real joins' decisions left to the next join (join_alternatives.hpp): weak joins', large
   // joins' doubtful pairs; the final fold's are not counted.
   double weak_joins = 0.0, doubtful_joins = 0.0, alternatives_taken = 0.0;

@@ -440,6 +440,54 @@ TEST(DcSlam, WeakJoinsDecideAlikeInEveryMode) {
   }
 }
 
+// estimate() while a join is pending computes that join on the side, and a later estimate()
+// takes it as computed while the join is still pending (DCSlam::MaterializedJoin): called at
+// every step, amortized and threaded runs give bitwise the estimate and resolved ids of the
+// immediate run at that step, where no join is pending, with merges after small joins to
+// replay (join_merge_max_leaves) and weak joins' versions in the reused maps.
+TEST(DcSlam, EstimateAtEveryStepReusesPendingJoinsExactly) {
+  const Simulation sim = small_loop_laps();
+  SlamConfig config;
+  config.association = Association::Jcbb;
+  config.join_association = JoinAssociation::Rjc;
+  config.join_merge_max_leaves = 4;
+  std::vector<Estimate> expected;  // the immediate run's, at the same steps
+  std::vector<std::int64_t> expected_ids;
+  for (Mode mode : {Mode::Immediate, Mode::Amortized, Mode::Threaded}) {
+    DCSlam dc(in_mode(config, mode));
+    std::size_t step = 0, calls = 0;
+    const std::vector<std::int64_t> returned = run_without_ids(dc, sim, [&] {
+      if (++step % 3 != 0) return;  // every third step: a pending join lasts several
+      const Estimate estimate = dc.estimate();
+      if (mode == Mode::Immediate) {
+        expected.push_back(estimate);
+        return;
+      }
+      const Estimate& immediate = expected[calls++];
+      ASSERT_EQ(estimate.landmark_ids, immediate.landmark_ids) << mode_name(mode) << ", step " << step;
+      ASSERT_TRUE((estimate.robot.array() == immediate.robot.array()).all()) << mode_name(mode) << ", step " << step;
+      ASSERT_TRUE(estimate.covariance.size() == immediate.covariance.size() &&
+                  (estimate.covariance.array() == immediate.covariance.array()).all())
+          << mode_name(mode) << ", step " << step;
+    });
+    // resolve() follows the last estimate()'s merges until the next step.
+    const Estimate last = dc.estimate();
+    const std::map<std::string, double>& counters = dc.stats().counters;
+    if (mode == Mode::Immediate) {
+      expected.push_back(last);
+      expected_ids = dc.resolve(returned);
+      EXPECT_EQ(counters.at("estimate_pending_joins"), 0.0);
+      continue;
+    }
+    EXPECT_EQ(dc.resolve(returned), expected_ids) << mode_name(mode);
+    EXPECT_EQ(last.landmark_ids, expected.back().landmark_ids) << mode_name(mode);
+    EXPECT_EQ(calls + 1, expected.size()) << mode_name(mode);
+    // Some pending joins were taken from the call before, not all: each is computed once.
+    EXPECT_GT(counters.at("estimate_pending_joins_reused"), 0.0) << mode_name(mode);
+    EXPECT_LT(counters.at("estimate_pending_joins_reused"), counters.at("estimate_pending_joins")) << mode_name(mode);
+  }
+}
+
 // Without ids a localisation (its RJC) is resumable work that amortized and threaded joins
 // spread over the steps after its closure: it is seen under way between steps, it localises,
 // and the maps and ids stay those of the run without it. Also run under TSan: the

@@ -241,8 +241,20 @@ class DCSlam : public SlamFilter {
   };
   // The map of a frozen node, computing pending joins on copies (never touching the real
   // tasks) as complete() finishes them, the merges after small joins included; what those
-  // joins did to ids is appended to `settled`, oldest first, and recorded in `ids`.
+  // joins did to ids is appended to `settled`, oldest first, and recorded in `ids`. A pending
+  // join computed by an earlier estimate() is taken from materialized_.
   TreeMap materialize(const FrozenNode& node, std::vector<JoinIds>& settled, SettledIds& ids) const;
+  // A pending join as estimate() computed it on the side: its result and what it did to ids
+  // (its own joins' JoinIds, then its merges; not its inputs'). Its inputs never change while
+  // it is pending, and an input that completes meanwhile is bitwise the map computed on the
+  // side, so the next estimate() takes it as it is while the join is still pending. That is
+  // most of a call's cost on a revisit while a large join is spread over the steps.
+  struct MaterializedJoin {
+    std::weak_ptr<const Node> node;
+    TreeMap map;
+    std::vector<JoinIds> settled;
+    std::uint64_t used_by = 0;  // the estimate() call that last took or made it
+  };
   // complete()'s merge after a join that spans `leaves` local maps, on its result `decided`
   // (nothing when the join is larger than join_merge_max_leaves or keeps a version for the
   // next join); records the merges in `aliases` and `sightings` and returns them.
@@ -377,6 +389,11 @@ class DCSlam : public SlamFilter {
   // the next predict() or update(), so that ids resolve to that estimate's landmarks.
   mutable IdAliases estimate_aliases_;
   mutable std::vector<JoinPairingRecord> fold_pairings_;  // of the last estimate()
+  // The pending joins the last estimate() computed on the side or took from the one before
+  // (front end only: estimate() is their only reader and writer).
+  mutable std::vector<MaterializedJoin> materialized_;
+  mutable std::uint64_t estimate_calls_ = 0;
+  mutable std::int64_t estimate_pending_joins_ = 0, estimate_pending_joins_reused_ = 0;
   bool stopping_ = false;
   bool worker_busy_ = false;
   // Gauss–Newton passes of the last estimate()'s re-linearised tree, and its last step.
