@@ -128,6 +128,18 @@ void DCSlam::begin_step() {
       leftover = std::move(released_.front());
       released_.pop_front();
     }
+    // A join estimate() computed on the side that has completed since (or was rolled back)
+    // cannot be taken again: its map joins the leftovers rather than staying till the next call.
+    for (auto it = materialized_.begin(); it != materialized_.end();) {
+      const std::shared_ptr<const Node> node = it->node.lock();
+      if (node && !node->map) {
+        ++it;
+        continue;
+      }
+      released_.push_back(std::move(it->map.map));
+      released_.push_back(std::move(it->map.alternative));
+      it = materialized_.erase(it);
+    }
   }
   stats_.steps.emplace_back();
   ++steps_;

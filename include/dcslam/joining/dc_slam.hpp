@@ -389,8 +389,8 @@ class DCSlam : public SlamFilter {
   // the next predict() or update(), so that ids resolve to that estimate's landmarks.
   mutable IdAliases estimate_aliases_;
   mutable std::vector<JoinPairingRecord> fold_pairings_;  // of the last estimate()
-  // The pending joins the last estimate() computed on the side or took from the one before
-  // (front end only: estimate() is their only reader and writer).
+  // The pending joins the last estimate() computed on the side or took from the one before,
+  // less those completed since (begin_step()); front end only.
   mutable std::vector<MaterializedJoin> materialized_;
   mutable std::uint64_t estimate_calls_ = 0;
   mutable std::int64_t estimate_pending_joins_ = 0, estimate_pending_joins_reused_ = 0;
