@@ -482,7 +482,9 @@ TEST(DcSlam, EstimateAtEveryStepReusesPendingJoinsExactly) {
     EXPECT_EQ(dc.resolve(returned), expected_ids) << mode_name(mode);
     EXPECT_EQ(last.landmark_ids, expected.back().landmark_ids) << mode_name(mode);
     EXPECT_EQ(calls + 1, expected.size()) << mode_name(mode);
-    // Some pending joins were taken from the call before, not all: each is computed once.
+    // Some pending joins were taken from the call before, not all: each is computed once. (The
+    // worker thread may finish every join before the next call: no count to expect there.)
+    if (mode == Mode::Threaded) continue;
     EXPECT_GT(counters.at("estimate_pending_joins_reused"), 0.0) << mode_name(mode);
     EXPECT_LT(counters.at("estimate_pending_joins_reused"), counters.at("estimate_pending_joins")) << mode_name(mode);
   }
