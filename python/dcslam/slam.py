@@ -379,7 +379,11 @@ class DCSlam(SlamFilter):
     Joins run immediately (``amortize=False``), spread over the following steps
     (``amortize=True``, default) or on a background thread (``threaded_joins=True``), with
     bitwise the same result. :meth:`estimate` joins the whole stack on copies (anytime) and
-    never disturbs the run; :meth:`pose` is cheap.
+    never disturbs the run, computing the joins still pending on the side; a join still
+    pending at the next call is taken as computed, so watching the map during the run pays
+    for each pending join once (``stats.counters["estimate_pending_joins_reused"]``). Its
+    cost grows with the map: milliseconds on Victoria Park, about a second on a small scene
+    revisited for 1,600 steps. :meth:`pose` is cheap.
 
     Data association at joins: ``cfg.join_association`` (``"rjc"``, ``"jcbb"`` or
     ``"known"``); :meth:`resolve` maps the id of a feature merged at a join to the feature
