@@ -327,6 +327,17 @@ void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
     std::vector<int>& compatible = candidates_[i];
     compatible.clear();
     for (const auto& [distance_sq, feature] : ranked_) compatible.push_back(feature);
+    // SlamConfig::confirmed_features_first: beside a confirmed feature, the tentative ones are
+    // not candidates.
+    if (config_.confirmed_features_first && !tentative.empty()) {
+      const bool mature = std::any_of(compatible.begin(), compatible.end(),
+                                      [&](int f) { return tentative[static_cast<std::size_t>(f)] == 0; });
+      if (mature) {
+        compatible.erase(std::remove_if(compatible.begin(), compatible.end(),
+                                        [&](int f) { return tentative[static_cast<std::size_t>(f)] != 0; }),
+                         compatible.end());
+      }
+    }
   }
 
   std::vector<int> feature_of;
@@ -353,7 +364,7 @@ void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
       // only, a close decision starts a feature, on probation.
       if (likelihood && clearly_unexplained(static_cast<int>(i), chosen_score, counters)) {
         pairing[i] = kNewFeature;
-      } else if (!tentative.empty() &&
+      } else if (config_.new_feature_beside_tentative && !tentative.empty() &&
                  std::all_of(candidates_[i].begin(), candidates_[i].end(),
                              [&](int feature) { return tentative[static_cast<std::size_t>(feature)] != 0; })) {
         pairing[i] = kNewFeatureOnProbation;

@@ -161,6 +161,7 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod(c.unexplained_density);
   out.pod(c.new_feature_margin);
   out.pod<std::uint8_t>(c.new_feature_beside_tentative);
+  out.pod<std::uint8_t>(c.confirmed_features_first);
   out.pod(c.jcbb_max_nodes);
   out.pod(c.min_sightings);
   out.pod(c.tentative_window);
@@ -206,6 +207,7 @@ SlamConfig load_config(Reader& in) {
   c.unexplained_density = in.pod<double>();
   c.new_feature_margin = in.pod<double>();
   c.new_feature_beside_tentative = in.flag();
+  c.confirmed_features_first = in.flag();
   c.jcbb_max_nodes = in.pod<std::int64_t>();
   c.min_sightings = in.pod<int>();
   c.tentative_window = in.pod<int>();

@@ -84,6 +84,14 @@ class SlamConfig:
             simulated scenes ``True`` raises recall by 0.01-0.02 but maps more landmarks twice
             and leaves D&C's robot further off on the paper's straight trajectory
             (docs/data_association.md, "Unpaired beside tentative features only").
+        confirmed_features_first: ``"nn"``/``"jcbb"`` with ``min_sightings > 1``: a
+            measurement individually compatible with a confirmed feature is not offered to
+            the tentative features, so it cannot confirm one. A clutter point beside a
+            landmark starts a tentative feature whose wide covariance would otherwise take the
+            landmark's next measurement and become a second feature of it. ``False``
+            (default): every compatible feature is a candidate. ``True`` maps far fewer
+            landmarks twice in the EKF on the revisit scenes and on Victoria Park
+            (docs/data_association.md, "Confirmed features first").
         jcbb_max_nodes: ``"jcbb"``: interpretation-tree nodes per scan (>= 1) before JCBB
             returns the best hypothesis found so far (counted in ``stats.counters``
             ``"jcbb_bound_hits"``).
@@ -218,6 +226,7 @@ class SlamConfig:
     unexplained_density: float = 0.02
     new_feature_margin: float = 5.0
     new_feature_beside_tentative: bool = False
+    confirmed_features_first: bool = False
     jcbb_max_nodes: int = 20000
     min_sightings: int = 2
     tentative_window: int = 5

@@ -337,6 +337,9 @@ TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowd
     config.unexplained_density = observation == ObservationModel::RangeBearing ? 2.0 : 0.3;
     config.new_feature_margin = margin;
     config.new_feature_beside_tentative = with_tentative;
+    // The candidates of the enumeration are every compatible feature (confirmed_features_first
+    // is tested on its own: AMeasurementBesideAConfirmedFeatureDoesNotConfirmATentativeOne).
+    config.confirmed_features_first = false;
     const double gate = chi2_quantile(2, config.gate_confidence);
     std::mt19937_64 rng(15);
     std::mt19937_64 tentative_rng(16);
@@ -486,6 +489,8 @@ TEST(EkfSlamTentative, UnpairedBesideTentativeFeaturesStartsAFeatureOnProbation)
     config.association = Association::Jcbb;
     config.unexplained_density = 0.0;  // every unpaired measurement with a candidate is a close call
     config.new_feature_beside_tentative = rule;
+    // The scans below pair a measurement beside tentative B with confirmed A in its gate too.
+    config.confirmed_features_first = false;
     EkfSlam slam(config);
     slam.predict(Vec3::Zero(), Q);
     const std::int64_t a = slam.update(scan({Vec2(2.0, 0.0)}), R, nullptr)[0];
@@ -516,6 +521,60 @@ TEST(EkfSlamTentative, UnpairedBesideTentativeFeaturesStartsAFeatureOnProbation)
     EXPECT_EQ(third[1], -1);
     EXPECT_EQ(slam.stats().counters.at("started_beside_tentative"), 1.0);
   }
+}
+
+// SlamConfig::confirmed_features_first: a measurement compatible with a confirmed feature A and
+// with a nearer tentative feature C (a clutter point seen once beside A) goes to A, and C,
+// never confirmed, is removed; with the rule off it confirms C, a second feature where A's
+// landmark was measured. With no confirmed feature compatible, C takes it either way.
+TEST(EkfSlamTentative, AMeasurementBesideAConfirmedFeatureDoesNotConfirmATentativeOne) {
+  const std::vector<Mat2> R{Mat2::Identity() * 1e-4};
+  const auto scan = [](std::initializer_list<Vec2> points) {
+    MeasurementMatrix z(static_cast<Eigen::Index>(points.size()), 2);
+    Eigen::Index row = 0;
+    for (const Vec2& p : points) z.row(row++) = p.transpose();
+    return z;
+  };
+  for (const bool rule : {true, false}) {
+    SlamConfig config;
+    config.observation = ObservationModel::Point;
+    config.association = Association::Jcbb;
+    config.unexplained_density = 0.0;  // most pairings, then the nearest
+    config.confirmed_features_first = rule;
+    EkfSlam slam(config);
+    const Mat3 still = Mat3::Identity() * 1e-8;
+    slam.predict(Vec3::Zero(), still);
+    const std::int64_t a = slam.update(scan({Vec2(2.0, 0.0)}), R, nullptr)[0];
+    slam.predict(Vec3::Zero(), still);
+    // A seen again (confirmed); C, 0.3 m away and outside A's gate, starts a tentative feature.
+    const auto second = slam.update(scan({Vec2(2.0, 0.0), Vec2(2.3, 0.0)}), {R[0], R[0]}, nullptr);
+    ASSERT_EQ(second[0], a);
+    const std::int64_t c = second[1];
+    ASSERT_GE(c, 0);
+    ASSERT_NE(c, a);
+    // A loose motion (0.1 m in position) puts both in the gate of a point between them, nearer C.
+    slam.predict(Vec3::Zero(), Vec3(0.01, 0.01, 1e-8).asDiagonal().toDenseMatrix());
+    const std::int64_t third = slam.update(scan({Vec2(2.16, 0.0)}), R, nullptr)[0];
+    EXPECT_EQ(third, rule ? a : c) << (rule ? "on" : "off");
+    for (int k = 0; k <= config.tentative_window; ++k) {
+      slam.predict(Vec3::Zero(), still);
+      slam.update(scan({}), {}, nullptr);
+    }
+    const std::vector<std::int64_t> resolved = slam.resolve({a, c});
+    EXPECT_EQ(resolved[0], a);
+    EXPECT_EQ(resolved[1], rule ? -1 : c) << (rule ? "on" : "off");  // C removed unconfirmed, or kept
+  }
+  // Beside tentative features only, the rule changes nothing: C alone, tentative, takes it.
+  SlamConfig config;
+  config.observation = ObservationModel::Point;
+  config.association = Association::Jcbb;
+  config.unexplained_density = 0.0;
+  config.confirmed_features_first = true;
+  EkfSlam slam(config);
+  slam.predict(Vec3::Zero(), Mat3::Identity() * 1e-8);
+  const std::int64_t c = slam.update(scan({Vec2(2.3, 0.0)}), R, nullptr)[0];
+  slam.predict(Vec3::Zero(), Mat3::Identity() * 1e-8);
+  EXPECT_EQ(slam.update(scan({Vec2(2.3, 0.0)}), R, nullptr)[0], c);
 }
 
 // D&C: a local map is closed without its tentative features, whose ids resolve to -1.

@@ -100,8 +100,9 @@ class EkfAssociation {
 
   // Fills pairing (one entry per measurement: feature index, kNewFeature, kRejected or
   // kNewFeatureOnProbation). `tentative` marks the features still tentative, one flag per
-  // feature, when SlamConfig::new_feature_beside_tentative applies; empty, it does not (the
-  // filter knows its tentative-feature policy, EkfSlam::associate()). Counters "jcbb_nodes", "jcbb_bound_hits", "unexplained_started" and
+  // feature, when SlamConfig::new_feature_beside_tentative or confirmed_features_first
+  // applies; empty, neither does (the filter knows its tentative-feature policy,
+  // EkfSlam::associate()). Counters "jcbb_nodes", "jcbb_bound_hits", "unexplained_started" and
   // "started_beside_tentative" are added to `counters`.
   void associate(const GaussianMap& map, const MeasurementsRef& z, const ScanNoise& R,
                  const std::vector<std::uint8_t>& tentative, std::vector<Index>& pairing,

@@ -16,6 +16,7 @@ class ParseError(ValueError):
 class SlamConfig:
     amortize: bool
     association: str
+    confirmed_features_first: bool
     join_association: str
     keep_local_map_poses: bool
     new_feature_beside_tentative: bool
