@@ -90,8 +90,9 @@ class SlamConfig:
             landmark starts a tentative feature whose wide covariance would otherwise take the
             landmark's next measurement and become a second feature of it. ``False``
             (default): every compatible feature is a candidate. ``True`` maps far fewer
-            landmarks twice in the EKF on the revisit scenes and on Victoria Park
-            (docs/data_association.md, "Confirmed features first").
+            landmarks twice in the EKF on the revisit scenes and on Victoria Park, but
+            worsens its precision and robot on MR.CLAM (docs/data_association.md,
+            "Confirmed features first").
         jcbb_max_nodes: ``"jcbb"``: interpretation-tree nodes per scan (>= 1) before JCBB
             returns the best hypothesis found so far (counted in ``stats.counters``
             ``"jcbb_bound_hits"``).

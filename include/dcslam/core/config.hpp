@@ -61,10 +61,10 @@ struct SlamConfig {
   // whose wide covariance then takes the landmark's next measurement from the landmark's own
   // feature, tighter and, after many sightings, optimistic: a second feature of the landmark
   // for good. Beside no confirmed feature, tentative features are offered as before.
-  // Off by default for now: on the simulator's revisit scenes the EKF maps far fewer landmarks
-  // twice with it, and Victoria Park's EKF map has 15 pairs closer than 1 m instead of 27, but
-  // it redraws many traced runs and figures (docs/data_association.md, "Confirmed features
-  // first"). false: every compatible feature.
+  // Off by default: on the simulator's revisit scenes the EKF maps far fewer landmarks twice
+  // with it, and Victoria Park's EKF map has 15 pairs closer than 1 m instead of 27, but on
+  // MR.CLAM, whose sightings are biased, the EKF's precision and robot get worse
+  // (docs/data_association.md, "Confirmed features first"). false: every compatible feature.
   bool confirmed_features_first = false;
   // "jcbb": interpretation-tree nodes per scan before JCBB returns its best hypothesis so far.
   std::int64_t jcbb_max_nodes = 20000;
