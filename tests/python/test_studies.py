@@ -210,8 +210,8 @@ def test_clustering_ceiling_is_exact_on_nearly_noise_free_measurements():
     for method in study.METHODS:
         ids = study.oracle_ids(sim, method, 1 - 1e-9)
         np.testing.assert_array_equal(ids, sim.true_ids)
-    scores = dcslam.evaluation.association_scores(sim.true_ids, study.oracle_ids(sim, "assignment", 1 - 1e-9))
-    assert scores.pairwise_precision == scores.pairwise_recall == scores.features_per_landmark == 1.0
+        scores = dcslam.evaluation.association_scores(sim.true_ids, ids)
+        assert scores.pairwise_precision == scores.pairwise_recall == scores.features_per_landmark == 1.0
 
 
 def test_clustering_ceiling_command_line():
