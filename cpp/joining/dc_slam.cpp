@@ -723,7 +723,6 @@ TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settle
     if (made.node.lock() != node.node) continue;
     for (const JoinIds& join_ids : made.settled) record_ids(join_ids, ids.aliases, ids.sightings);
     settled.insert(settled.end(), made.settled.begin(), made.settled.end());
-    made.used_by = estimate_calls_;
     ++estimate_pending_joins_reused_;
     return made.map;
   }
@@ -739,15 +738,15 @@ TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settle
                           "; the filter is unchanged until it runs that join (finish_joins() runs it now)");
   }
   DecidedJoin decided = join->take_result(tentative_of(left, right), node.index);
-  MaterializedJoin made{node.node, TreeMap(), decided.settled, estimate_calls_};
+  MaterializedJoin made{node.node, TreeMap(), decided.settled};
   for (const JoinIds& join_ids : decided.settled) record_ids(join_ids, ids.aliases, ids.sightings);
   JoinIds merges;
   merges.merged = merge_after_join(left.leaves + right.leaves, decided, ids.aliases, ids.sightings);
   if (!merges.merged.empty()) made.settled.push_back(std::move(merges));
   settled.insert(settled.end(), made.settled.begin(), made.settled.end());
   made.map = decided.tree_map();
-  materialized_.push_back(made);
-  return made.map;
+  materialized_.push_back(std::move(made));
+  return materialized_.back().map;
 }
 
 std::vector<std::pair<std::int64_t, std::int64_t>> DCSlam::merge_after_join(int leaves, DecidedJoin& decided,
@@ -1000,7 +999,6 @@ Estimate DCSlam::estimate() const {
   // the fold is decided by the rest of the fold; the last one's result is final.
   std::vector<FoldInput> inputs;
   SettledIds settled_ids{merged, state.sightings};
-  ++estimate_calls_;
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     FoldInput input;
     input.map = materialize(**it, input.settled, settled_ids);
@@ -1008,10 +1006,6 @@ Estimate DCSlam::estimate() const {
     input.leaves = (*it)->node->leaves;
     inputs.push_back(std::move(input));
   }
-  // Only joins still pending at this call can be pending at the next.
-  materialized_.erase(std::remove_if(materialized_.begin(), materialized_.end(),
-                                     [&](const MaterializedJoin& made) { return made.used_by != estimate_calls_; }),
-                      materialized_.end());
   FoldAssociations associations;
   state = fold(std::move(state), inputs, 0, associations);
   inputs.clear();

@@ -253,7 +253,6 @@ class DCSlam : public SlamFilter {
     std::weak_ptr<const Node> node;
     TreeMap map;
     std::vector<JoinIds> settled;
-    std::uint64_t used_by = 0;  // the estimate() call that last took or made it
   };
   // complete()'s merge after a join that spans `leaves` local maps, on its result `decided`
   // (nothing when the join is larger than join_merge_max_leaves or keeps a version for the
@@ -389,10 +388,9 @@ class DCSlam : public SlamFilter {
   // the next predict() or update(), so that ids resolve to that estimate's landmarks.
   mutable IdAliases estimate_aliases_;
   mutable std::vector<JoinPairingRecord> fold_pairings_;  // of the last estimate()
-  // The pending joins the last estimate() computed on the side or took from the one before,
-  // less those completed since (begin_step()); front end only.
+  // The pending joins estimate() computed on the side, until the first step after they
+  // complete (begin_step()); front end only.
   mutable std::vector<MaterializedJoin> materialized_;
-  mutable std::uint64_t estimate_calls_ = 0;
   mutable std::int64_t estimate_pending_joins_ = 0, estimate_pending_joins_reused_ = 0;
   bool stopping_ = false;
   bool worker_busy_ = false;
