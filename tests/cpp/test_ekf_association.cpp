@@ -535,14 +535,18 @@ TEST(EkfSlamTentative, AMeasurementBesideAConfirmedFeatureDoesNotConfirmATentati
     for (const Vec2& p : points) z.row(row++) = p.transpose();
     return z;
   };
-  for (const bool rule : {true, false}) {
+  const auto config_of = [](bool rule) {
     SlamConfig config;
     config.observation = ObservationModel::Point;
     config.association = Association::Jcbb;
     config.unexplained_density = 0.0;  // most pairings, then the nearest
     config.confirmed_features_first = rule;
+    return config;
+  };
+  const Mat3 still = Mat3::Identity() * 1e-8;
+  for (const bool rule : {true, false}) {
+    const SlamConfig config = config_of(rule);
     EkfSlam slam(config);
-    const Mat3 still = Mat3::Identity() * 1e-8;
     slam.predict(Vec3::Zero(), still);
     const std::int64_t a = slam.update(scan({Vec2(2.0, 0.0)}), R, nullptr)[0];
     slam.predict(Vec3::Zero(), still);
@@ -565,15 +569,10 @@ TEST(EkfSlamTentative, AMeasurementBesideAConfirmedFeatureDoesNotConfirmATentati
     EXPECT_EQ(resolved[1], rule ? -1 : c) << (rule ? "on" : "off");  // C removed unconfirmed, or kept
   }
   // Beside tentative features only, the rule changes nothing: C alone, tentative, takes it.
-  SlamConfig config;
-  config.observation = ObservationModel::Point;
-  config.association = Association::Jcbb;
-  config.unexplained_density = 0.0;
-  config.confirmed_features_first = true;
-  EkfSlam slam(config);
-  slam.predict(Vec3::Zero(), Mat3::Identity() * 1e-8);
+  EkfSlam slam(config_of(true));
+  slam.predict(Vec3::Zero(), still);
   const std::int64_t c = slam.update(scan({Vec2(2.3, 0.0)}), R, nullptr)[0];
-  slam.predict(Vec3::Zero(), Mat3::Identity() * 1e-8);
+  slam.predict(Vec3::Zero(), still);
   EXPECT_EQ(slam.update(scan({Vec2(2.3, 0.0)}), R, nullptr)[0], c);
 }
 
