@@ -72,6 +72,8 @@ Options of sim, scaling, vp and isam:
   --join-rival-margin N|none  SlamConfig.join_rival_margin (none: off)  [3]
   --online-localisation-sigma S|inf|none  SlamConfig.online_localisation_sigma [m]: D&C
                        localises each closed local map against its oldest map  [none]
+  --confirmed-first-confidence C|none  SlamConfig.confirmed_first_confidence: close to a
+                       confirmed feature, tentative ones are not candidates  [0.9]
   --seed S                                                          [0]
   --json FILE          write per-step times and totals as JSON
 
@@ -359,6 +361,8 @@ void apply_run_options(const Args& args, SlamConfig& config) {
   optional_option(args, "join-rival-margin", config.join_rival_margin,
                   [&](const std::string& key) { return static_cast<int>(number(args, key, 0)); });
   optional_option(args, "online-localisation-sigma", config.online_localisation_sigma,
+                  [&](const std::string& key) { return real_number(args, key, 0.0); });
+  optional_option(args, "confirmed-first-confidence", config.confirmed_first_confidence,
                   [&](const std::string& key) { return real_number(args, key, 0.0); });
   config.keep_local_map_poses = switch_option(args, "keep-local-map-poses", false);
   config.new_feature_beside_tentative = switch_option(args, "new-feature-beside-tentative", false);
@@ -763,7 +767,7 @@ void refuse_unknown_options(const std::string& command, const Args& args) {
                                         "join-feature-sigma", "keep-local-map-poses", "new-feature-beside-tentative",
                                         "tree-relinearisation", "weak-join-pairings", "join-merge-max-leaves",
                                         "chunked-jcbb-min-overlap", "join-rival-margin", "online-localisation-sigma",
-                                        "seed", "json"};
+                                        "confirmed-first-confidence", "seed", "json"};
   const std::vector<std::string> simulated = {"trajectory", "association", "clutter", "odometry-noise-scale",
                                               "gate", "unexplained-density", "new-feature-margin"};
   std::vector<std::string> known;

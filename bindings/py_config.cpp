@@ -33,7 +33,7 @@ void define_config(py::module_& m) {
       .def_readwrite("unexplained_density", &SlamConfig::unexplained_density)
       .def_readwrite("new_feature_margin", &SlamConfig::new_feature_margin)
       .def_readwrite("new_feature_beside_tentative", &SlamConfig::new_feature_beside_tentative)
-      .def_readwrite("confirmed_features_first", &SlamConfig::confirmed_features_first)
+      .def_readwrite("confirmed_first_confidence", &SlamConfig::confirmed_first_confidence)
       .def_readwrite("jcbb_max_nodes", &SlamConfig::jcbb_max_nodes)
       .def_readwrite("min_sightings", &SlamConfig::min_sightings)
       .def_readwrite("tentative_window", &SlamConfig::tentative_window)

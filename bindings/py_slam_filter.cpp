@@ -218,6 +218,9 @@ void define_slam_filter(py::module_& m) {
   m.def("pack_steps", &pack_steps, py::arg("steps"), py::arg("with_ids"));
   py::class_<SlamFilter>(m, "SlamFilter",
                          "The interface shared by EkfSlam and DCSlam (use dcslam.EkfSlam).")
+      // A copy: the filter's settings are fixed at construction (the Python wrapper keeps the
+      // dataclass it was given; this is what the filter runs with, e.g. after a checkpoint).
+      .def_property_readonly("config", [](const SlamFilter& filter) { return filter.config(); })
       .def(
           "predict",
           [](SlamFilter& filter, const py::object& u, const py::object& Q) {

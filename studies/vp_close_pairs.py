@@ -6,6 +6,7 @@ landmarks closer than 1 m than the EKF's. For each such pair of D&C's map this p
 distance, the Mahalanobis distance^2 of f_a - f_b in the final map (the merge's test), how many
 other features are within the merge radius and compatible (the merge's ambiguity rule), and
 whether the EKF's map has a landmark pair at the same place (then it is likely two real trees).
+It also prints how far the two maps agree (``dcslam.metrics.map_agreement``, within 1 and 2 m).
 
     .venv/bin/python studies/vp_close_pairs.py [--radius 1.0] [--seed 0] [--list]
         [--set field=value ...]   (overrides of the preset, both filters, e.g.
@@ -22,6 +23,7 @@ from scipy.stats import chi2
 
 import dcslam
 from dcslam.datasets import victoria_park
+from dcslam.metrics import map_agreement
 
 # The revisit benchmark's override parser, so that both read FIELD=VALUE the same way.
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "benchmarks"))
@@ -75,6 +77,10 @@ def main() -> None:
         estimates[name] = slam.estimate()
         pairs = close_pairs(estimates[name].landmarks, args.radius)
         print(f"{name}: {len(estimates[name].landmarks)} landmarks, {len(pairs)} pairs closer than {args.radius} m")
+
+    for radius in (1.0, 2.0):
+        agreement = map_agreement(estimates["D&C"], estimates["EKF"], radius=radius)
+        print(f"within {radius:g} m: D&C->EKF {agreement.first_in_second:.3f}, EKF->D&C {agreement.second_in_first:.3f}")
 
     ekf_pairs = close_pairs(estimates["EKF"].landmarks, args.radius)
     ekf_midpoints = np.array([(estimates["EKF"].landmarks[a] + estimates["EKF"].landmarks[b]) / 2

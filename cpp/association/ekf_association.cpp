@@ -152,6 +152,9 @@ double candidate_radius(ObservationModel observation, const Vec3& sensor_offset,
 EkfAssociation::EkfAssociation(const SlamConfig& config)
     : config_(config),
       gate_threshold_(chi2_quantile(2, config.gate_confidence)),
+      confirmed_first_threshold_(config.confirmed_first_confidence
+                                     ? chi2_quantile(2, *config.confirmed_first_confidence)
+                                     : -1.0),
       hash_(kInitialCellSize),
       jcbb_([&config] {
         JcbbOptions options;
@@ -327,12 +330,13 @@ void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
     std::vector<int>& compatible = candidates_[i];
     compatible.clear();
     for (const auto& [distance_sq, feature] : ranked_) compatible.push_back(feature);
-    // SlamConfig::confirmed_features_first: beside a confirmed feature, the tentative ones are
-    // not candidates.
-    if (config_.confirmed_features_first && !tentative.empty()) {
-      const bool mature = std::any_of(compatible.begin(), compatible.end(),
-                                      [&](int f) { return tentative[static_cast<std::size_t>(f)] == 0; });
-      if (mature) {
+    // SlamConfig::confirmed_first_confidence: close to a confirmed feature, the tentative ones
+    // are not candidates.
+    if (confirmed_first_threshold_ >= 0.0 && !tentative.empty()) {
+      const bool close_to_confirmed = std::any_of(ranked_.begin(), ranked_.end(), [&](const auto& ranked) {
+        return ranked.first <= confirmed_first_threshold_ && tentative[static_cast<std::size_t>(ranked.second)] == 0;
+      });
+      if (close_to_confirmed) {
         compatible.erase(std::remove_if(compatible.begin(), compatible.end(),
                                         [&](int f) { return tentative[static_cast<std::size_t>(f)] != 0; }),
                          compatible.end());

@@ -67,6 +67,10 @@ void SlamConfig::validate() const {
   require(!final_merge_confidence || (*final_merge_confidence > 0.0 && *final_merge_confidence < 1.0),
           "final_merge_confidence: must lie in (0, 1) or be None, got " +
               (final_merge_confidence ? number_text(*final_merge_confidence) : std::string()));
+  require(!confirmed_first_confidence ||
+              (*confirmed_first_confidence > 0.0 && *confirmed_first_confidence < 1.0),
+          "confirmed_first_confidence: must lie in (0, 1) or be None, got " +
+              (confirmed_first_confidence ? number_text(*confirmed_first_confidence) : std::string()));
   require(tentative_window >= 1,
           "tentative_window: must be >= 1, got " + std::to_string(tentative_window));
   require(weak_join_pairings >= 0,

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <optional>
 #include <type_traits>
 #include <utility>
 #include <vector>
@@ -151,7 +152,21 @@ class Reader {
 
 // A field added to SlamConfig must be added here too (and kCheckpointVersion raised): the size
 // check below fails the build until it is.
-static_assert(sizeof(SlamConfig) == 224, "SlamConfig changed: update save_config/load_config");
+static_assert(sizeof(SlamConfig) == 240, "SlamConfig changed: update save_config/load_config");
+
+// A flag and the value (0 when unset), read back as set or unset whatever the field's default.
+template <typename T>
+void optional_value(Writer& out, const std::optional<T>& value) {
+  out.pod<std::uint8_t>(value.has_value());
+  out.pod(value.value_or(T{}));
+}
+
+template <typename T>
+std::optional<T> optional_value(Reader& in) {
+  const bool has_value = in.flag();
+  const auto value = in.pod<T>();
+  return has_value ? std::optional<T>(value) : std::nullopt;
+}
 
 void save_config(Writer& out, const SlamConfig& c) {
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(c.observation));
@@ -161,13 +176,12 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod(c.unexplained_density);
   out.pod(c.new_feature_margin);
   out.pod<std::uint8_t>(c.new_feature_beside_tentative);
-  out.pod<std::uint8_t>(c.confirmed_features_first);
+  optional_value(out, c.confirmed_first_confidence);
   out.pod(c.jcbb_max_nodes);
   out.pod(c.min_sightings);
   out.pod(c.tentative_window);
   out.pod(c.merge_radius);
-  out.pod<std::uint8_t>(c.final_merge_confidence.has_value());
-  out.pod(c.final_merge_confidence.value_or(0.0));
+  optional_value(out, c.final_merge_confidence);
   out.pod(c.final_merge_shared_scans);
   out.pod(c.join_merge_max_leaves);
   out.pod(c.weak_join_pairings);
@@ -180,15 +194,13 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod(c.join_feature_sigma);
   out.pod(c.large_overlap_confidence);
   out.pod(c.chunked_jcbb_min_overlap);
-  out.pod<std::uint8_t>(c.join_rival_margin.has_value());
-  out.pod(c.join_rival_margin.value_or(0));
+  optional_value(out, c.join_rival_margin);
   out.pod(c.tree_relinearisation);
   out.pod(c.seed);
   out.pod<std::uint8_t>(c.amortize);
   out.pod<std::uint8_t>(c.threaded_joins);
   out.pod<std::uint8_t>(c.keep_local_map_poses);
-  out.pod<std::uint8_t>(c.online_localisation_sigma.has_value());
-  out.pod(c.online_localisation_sigma.value_or(0.0));
+  optional_value(out, c.online_localisation_sigma);
 }
 
 template <typename Enum>
@@ -207,14 +219,12 @@ SlamConfig load_config(Reader& in) {
   c.unexplained_density = in.pod<double>();
   c.new_feature_margin = in.pod<double>();
   c.new_feature_beside_tentative = in.flag();
-  c.confirmed_features_first = in.flag();
+  c.confirmed_first_confidence = optional_value<double>(in);
   c.jcbb_max_nodes = in.pod<std::int64_t>();
   c.min_sightings = in.pod<int>();
   c.tentative_window = in.pod<int>();
   c.merge_radius = in.pod<double>();
-  const bool has_final_merge_confidence = in.flag();
-  const auto final_merge_confidence = in.pod<double>();
-  if (has_final_merge_confidence) c.final_merge_confidence = final_merge_confidence;
+  c.final_merge_confidence = optional_value<double>(in);
   c.final_merge_shared_scans = in.pod<int>();
   c.join_merge_max_leaves = in.pod<int>();
   c.weak_join_pairings = in.pod<int>();
@@ -227,17 +237,13 @@ SlamConfig load_config(Reader& in) {
   c.join_feature_sigma = in.pod<double>();
   c.large_overlap_confidence = in.pod<double>();
   c.chunked_jcbb_min_overlap = in.pod<int>();
-  const bool has_join_rival_margin = in.flag();
-  const auto join_rival_margin = in.pod<int>();
-  if (has_join_rival_margin) c.join_rival_margin = join_rival_margin;
+  c.join_rival_margin = optional_value<int>(in);
   c.tree_relinearisation = in.pod<int>();
   c.seed = in.pod<std::uint64_t>();
   c.amortize = in.flag();
   c.threaded_joins = in.flag();
   c.keep_local_map_poses = in.flag();
-  const bool has_online_localisation_sigma = in.flag();
-  const auto online_localisation_sigma = in.pod<double>();
-  if (has_online_localisation_sigma) c.online_localisation_sigma = online_localisation_sigma;
+  c.online_localisation_sigma = optional_value<double>(in);
   c.validate();  // InvalidArgument naming the field
   return c;
 }

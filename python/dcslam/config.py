@@ -84,15 +84,16 @@ class SlamConfig:
             simulated scenes ``True`` raises recall by 0.01-0.02 but maps more landmarks twice
             and leaves D&C's robot further off on the paper's straight trajectory
             (docs/data_association.md, "Unpaired beside tentative features only").
-        confirmed_features_first: ``"nn"``/``"jcbb"`` with ``min_sightings > 1``: a
-            measurement individually compatible with a confirmed feature is not offered to
-            the tentative features, so it cannot confirm one. A clutter point beside a
-            landmark starts a tentative feature whose wide covariance would otherwise take the
-            landmark's next measurement and become a second feature of it. ``False``
-            (default): every compatible feature is a candidate. ``True`` maps far fewer
-            landmarks twice in the EKF on the revisit scenes and on Victoria Park, but
-            worsens its precision and robot on MR.CLAM (docs/data_association.md,
-            "Confirmed features first").
+        confirmed_first_confidence: ``"nn"``/``"jcbb"`` with ``min_sightings > 1``: a
+            measurement within this confidence region (chi-square, 2 dof) of a confirmed
+            feature is not offered to the tentative features, so it cannot confirm one. A
+            clutter point beside a landmark starts a tentative feature whose wide covariance
+            would otherwise take the landmark's next measurement and become a second feature
+            of it. Only close calls are restricted: a measurement far out in its landmark's
+            gate may still pair with a tentative feature, which on data with biased sightings
+            (MR.CLAM) is often the only way its landmark is recognised. ``None``: every
+            compatible feature is a candidate (docs/data_association.md, "Confirmed features
+            first").
         jcbb_max_nodes: ``"jcbb"``: interpretation-tree nodes per scan (>= 1) before JCBB
             returns the best hypothesis found so far (counted in ``stats.counters``
             ``"jcbb_bound_hits"``).
@@ -227,7 +228,7 @@ class SlamConfig:
     unexplained_density: float = 0.02
     new_feature_margin: float = 5.0
     new_feature_beside_tentative: bool = False
-    confirmed_features_first: bool = False
+    confirmed_first_confidence: Optional[float] = 0.9
     jcbb_max_nodes: int = 20000
     min_sightings: int = 2
     tentative_window: int = 5

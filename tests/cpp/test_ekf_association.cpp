@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <optional>
 #include <random>
 #include <set>
 #include <string>
@@ -337,9 +338,9 @@ TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowd
     config.unexplained_density = observation == ObservationModel::RangeBearing ? 2.0 : 0.3;
     config.new_feature_margin = margin;
     config.new_feature_beside_tentative = with_tentative;
-    // The candidates of the enumeration are every compatible feature (confirmed_features_first
+    // The candidates of the enumeration are every compatible feature (confirmed_first_confidence
     // is tested on its own: AMeasurementBesideAConfirmedFeatureDoesNotConfirmATentativeOne).
-    config.confirmed_features_first = false;
+    config.confirmed_first_confidence.reset();
     const double gate = chi2_quantile(2, config.gate_confidence);
     std::mt19937_64 rng(15);
     std::mt19937_64 tentative_rng(16);
@@ -490,7 +491,7 @@ TEST(EkfSlamTentative, UnpairedBesideTentativeFeaturesStartsAFeatureOnProbation)
     config.unexplained_density = 0.0;  // every unpaired measurement with a candidate is a close call
     config.new_feature_beside_tentative = rule;
     // The scans below pair a measurement beside tentative B with confirmed A in its gate too.
-    config.confirmed_features_first = false;
+    config.confirmed_first_confidence.reset();
     EkfSlam slam(config);
     slam.predict(Vec3::Zero(), Q);
     const std::int64_t a = slam.update(scan({Vec2(2.0, 0.0)}), R, nullptr)[0];
@@ -523,10 +524,12 @@ TEST(EkfSlamTentative, UnpairedBesideTentativeFeaturesStartsAFeatureOnProbation)
   }
 }
 
-// SlamConfig::confirmed_features_first: a measurement compatible with a confirmed feature A and
-// with a nearer tentative feature C (a clutter point seen once beside A) goes to A, and C,
-// never confirmed, is removed; with the rule off it confirms C, a second feature where A's
-// landmark was measured. With no confirmed feature compatible, C takes it either way.
+// SlamConfig::confirmed_first_confidence: a measurement compatible with a confirmed feature A
+// and with a nearer tentative feature C (a clutter point seen once beside A) goes to A when it
+// lies within the rule's confidence region of A, and C, never confirmed, is removed; with the
+// rule off, or with the measurement outside that region (D^2 about 2.5 to A against 1.39 at
+// 0.5), it confirms C, a second feature where A's landmark was measured. With no confirmed
+// feature compatible, C takes it either way.
 TEST(EkfSlamTentative, AMeasurementBesideAConfirmedFeatureDoesNotConfirmATentativeOne) {
   const std::vector<Mat2> R{Mat2::Identity() * 1e-4};
   const auto scan = [](std::initializer_list<Vec2> points) {
@@ -535,17 +538,20 @@ TEST(EkfSlamTentative, AMeasurementBesideAConfirmedFeatureDoesNotConfirmATentati
     for (const Vec2& p : points) z.row(row++) = p.transpose();
     return z;
   };
-  const auto config_of = [](bool rule) {
+  const auto config_of = [](std::optional<double> confidence) {
     SlamConfig config;
     config.observation = ObservationModel::Point;
     config.association = Association::Jcbb;
     config.unexplained_density = 0.0;  // most pairings, then the nearest
-    config.confirmed_features_first = rule;
+    config.confirmed_first_confidence = confidence;
     return config;
   };
   const Mat3 still = Mat3::Identity() * 1e-8;
-  for (const bool rule : {true, false}) {
-    const SlamConfig config = config_of(rule);
+  for (const std::optional<double> confidence : {std::optional<double>(0.9), std::optional<double>(0.5),
+                                                 std::optional<double>()}) {
+    const bool restricted = confidence == 0.9;
+    const std::string label = confidence ? std::to_string(*confidence) : std::string("None");
+    const SlamConfig config = config_of(confidence);
     EkfSlam slam(config);
     slam.predict(Vec3::Zero(), still);
     const std::int64_t a = slam.update(scan({Vec2(2.0, 0.0)}), R, nullptr)[0];
@@ -559,17 +565,17 @@ TEST(EkfSlamTentative, AMeasurementBesideAConfirmedFeatureDoesNotConfirmATentati
     // A loose motion (0.1 m in position) puts both in the gate of a point between them, nearer C.
     slam.predict(Vec3::Zero(), Vec3(0.01, 0.01, 1e-8).asDiagonal().toDenseMatrix());
     const std::int64_t third = slam.update(scan({Vec2(2.16, 0.0)}), R, nullptr)[0];
-    EXPECT_EQ(third, rule ? a : c) << (rule ? "on" : "off");
+    EXPECT_EQ(third, restricted ? a : c) << label;
     for (int k = 0; k <= config.tentative_window; ++k) {
       slam.predict(Vec3::Zero(), still);
       slam.update(scan({}), {}, nullptr);
     }
     const std::vector<std::int64_t> resolved = slam.resolve({a, c});
     EXPECT_EQ(resolved[0], a);
-    EXPECT_EQ(resolved[1], rule ? -1 : c) << (rule ? "on" : "off");  // C removed unconfirmed, or kept
+    EXPECT_EQ(resolved[1], restricted ? -1 : c) << label;  // C removed unconfirmed, or kept
   }
   // Beside tentative features only, the rule changes nothing: C alone, tentative, takes it.
-  EkfSlam slam(config_of(true));
+  EkfSlam slam(config_of(0.999));
   slam.predict(Vec3::Zero(), still);
   const std::int64_t c = slam.update(scan({Vec2(2.3, 0.0)}), R, nullptr)[0];
   slam.predict(Vec3::Zero(), still);

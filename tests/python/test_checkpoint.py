@@ -3,6 +3,7 @@ bitwise as the uninterrupted run (the oracle: the same run, never stopped); deep
 damaged checkpoints raise ValueError."""
 
 import copy
+import dataclasses
 import pickle
 import subprocess
 import sys
@@ -194,7 +195,24 @@ def test_a_filter_with_a_join_oracle_is_not_saved():
         pickle.dumps(slam)
 
 
-@pytest.mark.parametrize("value", [None, 0.999])
-def test_a_checkpoint_keeps_an_optional_config_field_set_or_unset(value):
-    slam = dcslam.DCSlam(dcslam.SlamConfig(final_merge_confidence=value))
-    assert pickle.loads(pickle.dumps(slam)).config.final_merge_confidence == value
+# A value other than the default for each optional field; unset (None) is checked too, which a
+# field whose default is set (join_rival_margin, confirmed_first_confidence) once lost.
+OPTIONAL_VALUES = {"confirmed_first_confidence": 0.95, "final_merge_confidence": 0.999,
+                   "join_rival_margin": 5, "online_localisation_sigma": 7.0}
+
+
+def test_every_optional_config_field_is_listed():
+    optional = {field.name for field in dataclasses.fields(dcslam.SlamConfig)
+                if "Optional" in str(field.type)}
+    assert optional == set(OPTIONAL_VALUES)
+
+
+@pytest.mark.parametrize("filter_class", [dcslam.EkfSlam, dcslam.DCSlam])
+@pytest.mark.parametrize("name", sorted(OPTIONAL_VALUES))
+@pytest.mark.parametrize("set_", [False, True])
+def test_a_checkpoint_keeps_an_optional_config_field_set_or_unset(filter_class, name, set_):
+    value = OPTIONAL_VALUES[name] if set_ else None
+    slam = filter_class(dcslam.SlamConfig(**{name: value}))
+    restored = pickle.loads(pickle.dumps(slam))
+    assert getattr(restored.config, name) == value
+    assert getattr(restored._core.config, name) == value  # what the resumed filter runs with

@@ -239,9 +239,13 @@ def test_small_joins_merge_duplicates_of_one_landmark():
     # the joins. Only joins within the limit that kept no version for the next join merge, each
     # listed in its join's record and followed by resolve().
     scored = same = 0
+    # Without confirmed_first_confidence, whose local maps leave these joins more duplicates to
+    # merge: with it these scenes give 6 scored merges, too few to judge (and nine scenes 9, all
+    # right).
     for scenario, seed in (("lawn_overlap", 0), ("lawn_overlap", 1), ("small_loop_laps", 1), ("loop_both_ways", 3)):
         sim = dcslam.revisit_scenario(scenario, seed=seed)
-        slam, _, _, returned = run(sim, dcslam.DCSlam, join_association="rjc", seed=seed, join_merge_max_leaves=4)
+        slam, _, _, returned = run(sim, dcslam.DCSlam, join_association="rjc", seed=seed, join_merge_max_leaves=4,
+                                   confirmed_first_confidence=None)
         ids = np.concatenate(returned)
         features, landmarks = evaluation.feature_landmarks(np.asarray(sim.true_ids), ids)
         label = dict(zip(features.tolist(), landmarks.tolist()))

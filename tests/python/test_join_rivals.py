@@ -23,9 +23,11 @@ NEES_99 = 11.34  # chi-square, 3 dof, 0.99
 
 def loop_run(scene_seed, split=None, at_split=None, **options):
     sim = dcslam.simulate("loop", steps=600, seed=scene_seed, clutter=0.1)
-    # As traced: rejecting what the local maps leave unpaired beside tentative features.
+    # As traced: rejecting what the local maps leave unpaired beside tentative features, and
+    # offering tentative features beside confirmed ones (with confirmed_first_confidence, the
+    # default since 2026-12-06, seed 9's loop closes right without the rule).
     config = dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=scene_seed + 2000,
-                               new_feature_beside_tentative=False, **options)
+                               new_feature_beside_tentative=False, confirmed_first_confidence=None, **options)
     slam, returned, estimate = run_dc(sim, config, split=split, at_split=at_split)
     return slam, returned, estimate, evaluation.evaluate_run(slam, estimate, returned, sim).robot
 

@@ -15,10 +15,11 @@ import pytest
 import dcslam
 from dcslam import evaluation
 
-# At the gate of 0.99 (the default until 2026-12-05) and with rejections beside tentative
-# features, where these collapses were traced.
+# At the gate of 0.99 (the default until 2026-12-05), with rejections beside tentative features
+# and tentative features offered beside confirmed ones (until 2026-12-06), where these collapses
+# were traced.
 BASE = dcslam.SlamConfig(association="jcbb", join_association="rjc", gate_confidence=0.99,
-                         new_feature_beside_tentative=False)
+                         new_feature_beside_tentative=False, confirmed_first_confidence=None)
 
 
 def ekf_recall(seed: int, config: dcslam.SlamConfig) -> float:

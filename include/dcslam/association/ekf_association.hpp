@@ -100,7 +100,7 @@ class EkfAssociation {
 
   // Fills pairing (one entry per measurement: feature index, kNewFeature, kRejected or
   // kNewFeatureOnProbation). `tentative` marks the features still tentative, one flag per
-  // feature, when SlamConfig::new_feature_beside_tentative or confirmed_features_first
+  // feature, when SlamConfig::new_feature_beside_tentative or confirmed_first_confidence
   // applies; empty, neither does (the filter knows its tentative-feature policy,
   // EkfSlam::associate()). Counters "jcbb_nodes", "jcbb_bound_hits", "unexplained_started" and
   // "started_beside_tentative" are added to `counters`.
@@ -152,6 +152,7 @@ class EkfAssociation {
 
   SlamConfig config_;
   double gate_threshold_;
+  double confirmed_first_threshold_;  // chi-square of confirmed_first_confidence; < 0: off
   SpatialHash hash_;
   std::vector<Vec2> hashed_position_;  // per feature index: where the hash holds it
   double sigma_feature_ = 0.0;         // >= sqrt(lambda_max(P_jj)) of every feature

@@ -16,7 +16,6 @@ class ParseError(ValueError):
 class SlamConfig:
     amortize: bool
     association: str
-    confirmed_features_first: bool
     join_association: str
     keep_local_map_poses: bool
     new_feature_beside_tentative: bool
@@ -31,6 +30,12 @@ class SlamConfig:
         ...
     @chunked_jcbb_min_overlap.setter
     def chunked_jcbb_min_overlap(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> None:
+        ...
+    @property
+    def confirmed_first_confidence(self) -> float | None:
+        ...
+    @confirmed_first_confidence.setter
+    def confirmed_first_confidence(self, arg0: typing.SupportsFloat | typing.SupportsIndex | None) -> None:
         ...
     @property
     def final_merge_confidence(self) -> float | None:
@@ -185,6 +190,9 @@ class SlamFilter:
     def run_batch(self, u: typing.Any, Q: typing.Any, z: typing.Any, R: typing.Any, offsets: typing.Any, landmark_ids: typing.Any = None) -> tuple[numpy.typing.NDArray[numpy.int64], numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64]]:
         ...
     def update(self, z: typing.Any, R: typing.Any, landmark_ids: typing.Any = None) -> numpy.typing.NDArray[numpy.int64]:
+        ...
+    @property
+    def config(self) -> SlamConfig:
         ...
     @property
     def stats(self) -> dict:
