@@ -123,10 +123,10 @@ class SlamConfig:
         join_merge_max_leaves: D&C only: after each join whose result spans at most this many
             local maps (>= 0) and keeps no alternative, the joined map's duplicated features
             are merged with the final merge's test, features seen once left out, so that
-            larger joins do not meet a landmark twice. 0 (the default) never; 4 raises recall
-            on runs that keep coming back (long_revisits +0.009, 46 of 60 runs up) but closes
-            the paper's 600-step loop without ids less often (19 of 30 runs against 23,
-            measured before ``join_rival_margin``) (docs/data_association.md, "Duplicates
+            larger joins do not meet a landmark twice. 0 (the default) never; with today's
+            other defaults 4 raises long_revisits' recall a little (0.878 -> 0.886 over three
+            RJC draws) with fewer runs whose robot is within its 99 % bound (22 of 30 against
+            25), and leaves the paper's loop as it is (docs/data_association.md, "Duplicates
             merged after small joins").
         weak_join_pairings: D&C only: a join of 8 local maps or more that makes at most this
             many pairs (>= 0), some of them with a feature seen once, is weak: it also builds
