@@ -28,7 +28,9 @@ The tool prints (1) for each filter how far its map lies from its own optimum (m
 in the filter's own landmark covariance), (2) the shares of landmarks within 1 m and 2 m
 between maps and optima (:func:`dcslam.metrics.map_agreement`, no ids), (3) distances
 between the same landmark in two sets (paired by shared measurements), each near the start
-and beyond (``--near``, 150 m).
+and beyond (``--near``, 150 m), (4) how far each optimum's trajectory, and each filter's online
+one, lies from the GPS, the one reference independent of both filters, with D&C's optimum also
+solved without the measurements the EKF associates with another landmark.
 
 Usage:
     .venv/bin/python studies/vp_batch_reference.py [--seed S] [--max-steps N]
@@ -122,6 +124,31 @@ def association_difference(first_ids, second_ids, pairs: Dict[int, int]) -> Dict
             else:
                 counts["neither"] += 1
     return counts
+
+
+def undisputed_ids(first_ids: Sequence, second_ids: Sequence, pairs: Dict[int, int]) -> List[np.ndarray]:
+    """The second run's ids less the measurements both runs associate, with landmarks that are
+    not the same by ``pairs`` (-1 there): what the second run's associations are without the
+    measurements the two runs dispute."""
+    out = []
+    for a_ids, b_ids in zip(first_ids, second_ids):
+        a_ids, b_ids = np.asarray(a_ids, dtype=np.int64), np.asarray(b_ids, dtype=np.int64)
+        disputed = np.array([a >= 0 and b >= 0 and pairs.get(int(a)) != int(b) for a, b in zip(a_ids, b_ids)],
+                            dtype=bool)
+        out.append(np.where(disputed, -1, b_ids))
+    return out
+
+
+def gps_rms(steps: Sequence, poses: np.ndarray, gps) -> Optional[float]:
+    """RMS (m) of a trajectory (pose k: step k's) from the GPS after rigid alignment, or None
+    when too few GPS fixes fall within the steps' time span (a short prefix)."""
+    from dcslam.metrics import gps_alignment
+
+    times = np.array([step.t for step in steps])
+    try:
+        return float(gps_alignment(times, poses, gps).rms)
+    except ValueError:
+        return None
 
 
 def consensus_ids(first_ids: Sequence, second_ids: Sequence, pairs: Dict[int, int]) -> List[np.ndarray]:
@@ -285,6 +312,12 @@ def format_report(report: Dict) -> str:
                          "far within 1 m"], rows)
         lines += ["", "Measurements by association (EKF, D&C): "
                   + ", ".join(f"{k} {v}" for k, v in report["association_difference"].items())]
+    if report.get("gps_rms"):
+        lines += ["", "4. Trajectories against the GPS (RMS after rigid alignment; the batch ones are each "
+                  "optimum's poses; 'without the disputed measurements': D&C's associations less those the "
+                  "EKF gives another landmark)"]
+        lines += _table(["trajectory", "RMS [m]"], [[name, "n/a (too few GPS fixes)" if value is None else f"{value:.3f}"]
+                                                   for name, value in report["gps_rms"].items()])
     if "seconds" in report:
         lines.append(f"total {report['seconds']:.1f} s")
     return "\n".join(lines)
@@ -366,6 +399,19 @@ def main(argv: Optional[Sequence[str]] = None) -> Dict:
                               vp.sensor_offset, runs["ekf"]["trajectory"], runs["ekf"]["map"],
                               max_iterations=args.max_iterations, tolerance=args.tolerance, verbose=args.verbose)
     report = compare(runs, args.near, consensus)
+    # The one reference independent of both filters: which associations' optimum lies nearer
+    # the GPS, and D&C's without the measurements the two filters dispute.
+    undisputed = batch_optimum(steps, undisputed_ids(runs["ekf"]["measurement_ids"], runs["dc"]["measurement_ids"], pairs),
+                               vp.sensor_offset, runs["ekf"]["trajectory"], runs["dc"]["map"],
+                               max_iterations=args.max_iterations, tolerance=args.tolerance, verbose=args.verbose)
+    report["gps_rms"] = {
+        "ekf batch": gps_rms(steps, runs["ekf"]["batch"].poses, vp.gps),
+        "dc batch": gps_rms(steps, runs["dc"]["batch"].poses, vp.gps),
+        "consensus batch": gps_rms(steps, consensus.poses, vp.gps),
+        "dc batch without the disputed measurements": gps_rms(steps, undisputed.poses, vp.gps),
+        "ekf online trajectory": gps_rms(steps, runs["ekf"]["trajectory"], vp.gps),
+        "dc online trajectory": gps_rms(steps, runs["dc"]["trajectory"], vp.gps),
+    }
     report.update(seed=args.seed, steps=len(steps), seconds=time.perf_counter() - started)
     print(format_report(report))
     if args.json_out:

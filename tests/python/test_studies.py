@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import dcslam
 import dcslam.evaluation
@@ -37,6 +38,12 @@ def test_vp_batch_reference_on_a_victoria_park_prefix(tmp_path):
         assert f["gradient_max"] < 1e-3
         assert f["batch_landmarks"] > 0
     assert saved["consensus"]["converged"]
+    gps = saved["gps_rms"]
+    assert all(value is not None and 0.0 < value < 10.0 for value in gps.values()), gps
+    # No measurement is disputed on this prefix: D&C's associations without the disputed ones
+    # are all of them, the same optimum (solved from another start, to the solver's tolerance).
+    assert saved["association_difference"]["both_different"] == 0
+    assert gps["dc batch without the disputed measurements"] == pytest.approx(gps["dc batch"], abs=1e-6)
 
 
 def test_vp_join_linearisation_on_a_victoria_park_prefix(tmp_path):
