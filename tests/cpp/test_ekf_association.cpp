@@ -419,6 +419,13 @@ TEST_P(EkfAssociationTest, LikelihoodCriterionEqualsExhaustiveEnumerationOnCrowd
 INSTANTIATE_TEST_SUITE_P(Models, EkfAssociationTest,
                          ::testing::Values(ObservationModel::RangeBearing, ObservationModel::Point));
 
+// One scan of point measurements (observation "point"), a row each.
+MeasurementMatrix scan(const std::vector<Vec2>& points) {
+  MeasurementMatrix z(static_cast<Eigen::Index>(points.size()), 2);
+  for (std::size_t i = 0; i < points.size(); ++i) z.row(static_cast<Eigen::Index>(i)) = points[i].transpose();
+  return z;
+}
+
 // A measurement seen once (spurious) is removed after tentative_window steps without a
 // sighting and its id resolves to -1; a landmark seen twice stays; "known" never prunes.
 TEST(EkfSlamTentative, UnconfirmedFeaturesAreRemovedAndResolveToMinusOne) {
@@ -472,12 +479,6 @@ TEST(EkfSlamTentative, UnconfirmedFeaturesAreRemovedAndResolveToMinusOne) {
 TEST(EkfSlamTentative, UnpairedBesideTentativeFeaturesStartsAFeatureOnProbation) {
   const std::vector<Mat2> R{Mat2::Identity() * 1e-4};
   const Mat3 Q = Mat3::Identity() * 1e-6;
-  const auto scan = [](std::initializer_list<Vec2> points) {
-    MeasurementMatrix z(static_cast<Eigen::Index>(points.size()), 2);
-    Eigen::Index row = 0;
-    for (const Vec2& p : points) z.row(row++) = p.transpose();
-    return z;
-  };
   const auto tentative_ids = [](const EkfSlam& slam) {
     std::vector<std::int64_t> ids;
     for (const auto& track : slam.tentative_features()) ids.push_back(track.id);
@@ -532,12 +533,6 @@ TEST(EkfSlamTentative, UnpairedBesideTentativeFeaturesStartsAFeatureOnProbation)
 // feature compatible, C takes it either way.
 TEST(EkfSlamTentative, AMeasurementBesideAConfirmedFeatureDoesNotConfirmATentativeOne) {
   const std::vector<Mat2> R{Mat2::Identity() * 1e-4};
-  const auto scan = [](std::initializer_list<Vec2> points) {
-    MeasurementMatrix z(static_cast<Eigen::Index>(points.size()), 2);
-    Eigen::Index row = 0;
-    for (const Vec2& p : points) z.row(row++) = p.transpose();
-    return z;
-  };
   const auto config_of = [](std::optional<double> confidence) {
     SlamConfig config;
     config.observation = ObservationModel::Point;
@@ -621,11 +616,6 @@ TEST(EkfSlamTentative, DcSlamKeepsAFeatureSeenOnceUntilItMeetsBothNeighbouringMa
   config.amortize = false;
   DCSlam slam(config);
   const std::vector<Mat2> R{Mat2::Identity() * 1e-4};
-  const auto scan = [](std::vector<Vec2> points) {
-    MeasurementMatrix z(static_cast<Eigen::Index>(points.size()), 2);
-    for (std::size_t i = 0; i < points.size(); ++i) z.row(static_cast<Eigen::Index>(i)) = points[i].transpose();
-    return z;
-  };
   const Vec2 A(2, 0), B(0, 3), C(-3, 0), D(0, -3), E(5, 5);
   const Mat3 Q = Mat3::Identity() * 1e-8;
   const auto step = [&](std::vector<Vec2> points) {
