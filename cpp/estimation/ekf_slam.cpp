@@ -244,7 +244,7 @@ void EkfSlam::associate(const MeasurementsRef& z, const ScanNoise& R,
                         const std::vector<std::int64_t>* landmark_ids) {
   if (association_) {
     tentative_flags_.clear();
-    if ((config_.new_feature_beside_tentative || config_.confirmed_first_confidence.has_value()) && tentative_policy()) {
+    if (association_->reads_tentative_flags() && tentative_policy()) {
       for (const Track& track : tracks_) tentative_flags_.push_back(track.sightings < config_.min_sightings);
     }
     association_->associate(map_, z, R, tentative_flags_, pairing_, stats_.counters);

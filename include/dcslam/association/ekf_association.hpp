@@ -98,10 +98,16 @@ class EkfAssociation {
 
   explicit EkfAssociation(const SlamConfig& config);
 
+  // Whether associate() reads the tentative flags (SlamConfig::new_feature_beside_tentative or
+  // confirmed_first_confidence); otherwise the filter need not build them.
+  bool reads_tentative_flags() const {
+    return config_.new_feature_beside_tentative || confirmed_first_threshold_ >= 0.0;
+  }
+
   // Fills pairing (one entry per measurement: feature index, kNewFeature, kRejected or
   // kNewFeatureOnProbation). `tentative` marks the features still tentative, one flag per
-  // feature, when SlamConfig::new_feature_beside_tentative or confirmed_first_confidence
-  // applies; empty, neither does (the filter knows its tentative-feature policy,
+  // feature, when reads_tentative_flags() and the filter keeps tentative features; empty,
+  // the rules that read it do not apply (the filter knows its tentative-feature policy,
   // EkfSlam::associate()). Counters "jcbb_nodes", "jcbb_bound_hits", "unexplained_started" and
   // "started_beside_tentative" are added to `counters`.
   void associate(const GaussianMap& map, const MeasurementsRef& z, const ScanNoise& R,
