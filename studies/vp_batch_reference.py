@@ -142,12 +142,12 @@ def undisputed_ids(first_ids: Sequence, second_ids: Sequence, pairs: Dict[int, i
 def gps_rms(steps: Sequence, poses: np.ndarray, gps) -> Optional[float]:
     """RMS (m) of a trajectory (pose k: step k's) from the GPS after rigid alignment, or None
     when too few GPS fixes fall within the steps' time span (a short prefix)."""
-    from dcslam.metrics import gps_alignment
+    from dcslam.metrics import TooFewGpsFixes, gps_alignment
 
     times = np.array([step.t for step in steps])
     try:
         return float(gps_alignment(times, poses, gps).rms)
-    except ValueError:
+    except TooFewGpsFixes:
         return None
 
 

@@ -23,6 +23,7 @@ if TYPE_CHECKING:  # pipeline.py re-exports this module's names, so it cannot be
 
 __all__ = [
     "GpsAlignment",
+    "TooFewGpsFixes",
     "gps_outliers",
     "gps_alignment",
     "rigid_fit_2d",
@@ -30,6 +31,11 @@ __all__ = [
     "map_agreement",
     "map_trajectory",
 ]
+
+
+class TooFewGpsFixes(ValueError):
+    """:func:`gps_alignment` found fewer than two usable GPS fixes in the trajectory's time span
+    (a short prefix of a run, or a track whose fixes are all outliers)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,7 +147,7 @@ def gps_alignment(timestamps, trajectory, gps, max_speed: float = 20.0) -> GpsAl
         gps: (g, 3) t, x, y on the same clock.
 
     Raises:
-        ValueError: fewer than 2 usable fixes.
+        TooFewGpsFixes: fewer than 2 usable fixes (a ``ValueError``).
     """
     timestamps = np.asarray(timestamps, dtype=float)
     positions = np.asarray(trajectory, dtype=float)[:, :2]
@@ -150,7 +156,7 @@ def gps_alignment(timestamps, trajectory, gps, max_speed: float = 20.0) -> GpsAl
     inside = (gps[:, 0] >= timestamps[0]) & (gps[:, 0] <= timestamps[-1]) if len(timestamps) else np.zeros(len(gps), bool)
     used = gps[~outlier & inside]
     if len(used) < 2:
-        raise ValueError(f"gps_alignment: {len(used)} usable GPS fixes in the trajectory's time span; need 2")
+        raise TooFewGpsFixes(f"gps_alignment: {len(used)} usable GPS fixes in the trajectory's time span; need 2")
     at_gps = np.column_stack([np.interp(used[:, 0], timestamps, positions[:, i]) for i in range(2)])
     rotation, translation = rigid_fit_2d(at_gps, used[:, 1:])
     residuals = np.linalg.norm(at_gps @ rotation.T + translation - used[:, 1:], axis=1)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import dcslam
-from dcslam.metrics import gps_alignment, gps_outliers, map_agreement, map_trajectory, rigid_fit_2d
+from dcslam.metrics import TooFewGpsFixes, gps_alignment, gps_outliers, map_agreement, map_trajectory, rigid_fit_2d
 from dcslam.pipeline import SlamPipeline
 
 from test_pipeline import corridor_steps, rotation
@@ -56,8 +56,9 @@ def test_gps_alignment_recovers_rotation_translation_and_rms():
     pose = alignment.apply_poses(np.array([[1.0, 2.0, 0.5]]))
     np.testing.assert_allclose(pose[0, :2], R @ [1.0, 2.0] + t, atol=0.3)
     assert pose[0, 2] == pytest.approx(0.5 - 0.7, abs=2e-3)
-    with pytest.raises(ValueError, match="GPS"):
+    with pytest.raises(TooFewGpsFixes, match="1 usable GPS fixes"):
         gps_alignment(times, trajectory, gps[:1])
+    assert issubclass(TooFewGpsFixes, ValueError)  # callers that caught ValueError still do
 
 
 def test_identical_and_shifted_maps():
