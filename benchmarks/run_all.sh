@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Runs the benchmarks recorded in BENCHMARKS.md; outputs (text and JSON) go to results/bench/.
-# Usage: bash benchmarks/run_all.sh [path/to/dcslam_bench]   (after tools/setup.sh; ~3 min)
+# Usage: bash benchmarks/run_all.sh [path/to/dcslam_bench]   (after tools/setup.sh; ~8 min)
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 bench=${1:-build/dev/benchmarks/dcslam_bench}
@@ -33,11 +33,6 @@ run assoc_scaling_loop sim --trajectory loop --steps 1500 --association jcbb --c
 for a in nn jcbb; do
   run "assoc_${a}_loop_noise3" sim --trajectory loop --steps 600 --association "$a" --clutter 0.1 \
     --odometry-noise-scale 3 --filter both
-done
-# The likelihood criterion in JCBB (its default density) with a wider gate.
-for t in loop lawn_mowing; do
-  run "assoc_likelihood_$t" sim --trajectory "$t" --steps 600 --association jcbb --clutter 0.1 \
-    --gate 0.999 --unexplained-density 0.02 --filter both
 done
 run association association
 run ekf_association ekf-association
