@@ -10,4 +10,8 @@ ctest --test-dir build/dev --output-on-failure -j2
 echo "== tsan"
 bash tools/run_sanitizers.sh thread
 echo "== pytest"
-"$PY" -m pytest -q tests/python
+# One worker a core, at most four (a worker holds a test module's data, Victoria Park's among
+# them); a module's tests stay on one worker, so module-scoped fixtures are built once.
+workers=$(nproc 2>/dev/null || echo 2)
+if (( workers > 4 )); then workers=4; fi
+"$PY" -m pytest -q -n "$workers" --dist loadfile tests/python

@@ -40,11 +40,11 @@ PY="$DCSLAM_ROOT/.venv/bin/python"
 # pybind11-stubgen is pinned: tests/python/test_typing.py compares its output with the checked-in
 # stubs of the compiled module, byte for byte. joblib, dask[distributed] and threadpoolctl are
 # dcslam.experiments' (the cluster extra).
-if ! "$PY" -c "import scikit_build_core, pybind11, cmake, ninja, pytest, scipy, typer, rich, matplotlib, hypothesis, mypy, pybind11_stubgen, joblib, distributed, threadpoolctl" 2>/dev/null; then
+if ! "$PY" -c "import scikit_build_core, pybind11, cmake, ninja, pytest, xdist, scipy, typer, rich, matplotlib, hypothesis, mypy, pybind11_stubgen, joblib, distributed, threadpoolctl" 2>/dev/null; then
   echo "setup: installing Python build and test requirements"
   "$PY" -m pip install -q --upgrade pip
   "$PY" -m pip install -q "scikit-build-core>=0.10" "pybind11>=2.12" cmake ninja \
-    numpy "typer>=0.9" "rich>=13" "matplotlib>=3.6" pytest scipy hypothesis mypy "pybind11-stubgen==3.0.0" \
+    numpy "typer>=0.9" "rich>=13" "matplotlib>=3.6" pytest pytest-xdist scipy hypothesis mypy "pybind11-stubgen==3.0.0" \
     joblib "dask[distributed]" threadpoolctl
 fi
 
