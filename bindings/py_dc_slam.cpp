@@ -47,6 +47,7 @@ py::dict join_event_dict(const JoinEvent& event) {
   out["duplicates_merged"] = event.pairing.merged.size();
   out["tries"] = event.report.tries;
   out["chunked"] = event.report.chunked;
+  out["widened"] = event.report.widened;
   out["iterations"] = event.report.iterations;
   out["seconds"] = event.report.seconds_total;
   out["seconds_association"] = event.report.seconds_association;

@@ -475,6 +475,7 @@ void save_event(Writer& out, const JoinEvent& e) {
   out.pod(r.pairings);
   out.pod(r.tries);
   out.pod<std::uint8_t>(r.chunked);
+  out.pod<std::uint8_t>(r.widened);
   out.pod(r.dropped_tentative);
   out.pod(r.deferred_pairings);
   out.pod(r.alternatives_taken);
@@ -499,6 +500,7 @@ JoinEvent load_event(Reader& in) {
   r.pairings = in.pod<int>();
   r.tries = in.pod<int>();
   r.chunked = in.flag();
+  r.widened = in.flag();
   r.dropped_tentative = in.pod<int>();
   r.deferred_pairings = in.pod<int>();
   r.alternatives_taken = in.pod<int>();

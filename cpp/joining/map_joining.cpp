@@ -242,6 +242,7 @@ std::int64_t MapJoin::associate_next(std::int64_t budget) {
     report_.overlap = result.overlap;
     report_.tries = result.tries;
     report_.chunked = result.chunked;
+    report_.widened = result.widened;
     for (const auto& [i, j] : result.disputed) {
       pairing_record_.disputed.emplace_back(m1.ids()[static_cast<std::size_t>(i)], m2.ids()[static_cast<std::size_t>(j)]);
     }

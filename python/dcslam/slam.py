@@ -358,7 +358,9 @@ class DCSlamStats(SlamStats):
             ``alternatives_taken`` (0-2: inputs of which it joined a version other than the
             one made), ``duplicates_merged`` (duplicated features merged in its result,
             ``cfg.join_merge_max_leaves``), ``tries`` (RJC), ``chunked`` (its pairs are chunked JCBB's, which
-            paired more than RJC, ``cfg.chunked_jcbb_min_overlap``), ``iterations`` (linearisation points of the
+            paired more than RJC, ``cfg.chunked_jcbb_min_overlap``), ``widened`` (its pairs are a second
+            search's at a wider gate, made where RJC paired less than half its overlap and
+            pairing more), ``iterations`` (linearisation points of the
             constraint update, at most ``cfg.join_iterations``; 0 without pairings),
             ``seconds`` (summed over the slices it ran in), ``seconds_association``,
             ``work_units`` (all three include the associations of the version combinations

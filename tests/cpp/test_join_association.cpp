@@ -625,5 +625,82 @@ TEST(JoinAssociation, LargeOverlapsAreDecidedAtTheirOwnConfidence) {
   EXPECT_LE(small.size(), 6u * 6u - 5u + 4u);
   EXPECT_LT(small.size(), join(6, 0.999, 0.999).size());
 }
+
+
+// A loop closed after a heading drift beyond its covariance: m1's robot estimate, the base of
+// m2, is turned by `heading_error` from the true pose, with a heading std of 0.01 rad. A
+// feature of m2 at distance rho from the base is moved by about heading_error * rho, so near
+// the base the true pairs fit and far from it they all sit at about the same D^2,
+// (heading_error / 0.01)^2. Beside each far landmark as m2 sees it, m1 holds a decoy 0.1 m
+// away in a direction of its own: individually compatible, jointly incompatible with the rest.
+struct DriftedJoin {
+  GaussianMap first, second;
+  std::vector<double> true_pair_distance_sq;  // per m2 feature
+};
+
+DriftedJoin drifted_join(double heading_error, std::size_t decoys) {
+  std::mt19937_64 rng(3);
+  const std::vector<Vec2> landmarks = landmark_field(Vec2(-10, -10), Vec2(10, 10), 60, 2.0, rng);
+  std::vector<std::int64_t> ids;
+  for (std::size_t k = 0; k < landmarks.size(); ++k) ids.push_back(static_cast<std::int64_t>(k));
+  const Vec3 robot(0.0, 0.0, heading_error);
+  std::vector<Vec2> first_features = landmarks;
+  std::vector<std::int64_t> first_ids = ids;
+  for (std::size_t k = 0; k < landmarks.size() && first_ids.size() < landmarks.size() + decoys; ++k) {
+    if (landmarks[k].norm() < 5.0) continue;
+    const double direction = 2.399963 * static_cast<double>(k);
+    first_features.push_back(transform_point(robot, landmarks[k]) + 0.1 * Vec2(std::cos(direction), std::sin(direction)));
+    first_ids.push_back(kClutterIds + static_cast<std::int64_t>(k));
+  }
+  DriftedJoin join;
+  join.first = hand_built_map(robot, Vec3(0.0004, 0.0004, 0.0001).asDiagonal(), first_features, first_ids, 0.02);
+  join.second = hand_built_map(Vec3(1, 0, 0), Mat3::Zero(), landmarks, ids, 0.02);
+  const JoinFrame frame(join.first, join.second);
+  const JoinPairingModel model(frame);
+  for (std::size_t k = 0; k < landmarks.size(); ++k) {
+    join.true_pair_distance_sq.push_back(individual_distance_sq(model, Pairing{static_cast<int>(k), static_cast<int>(k)}));
+  }
+  return join;
+}
+
+TEST(JoinAssociation, AJoinThatPairsLittleOfItsOverlapSearchesAgainAtAWiderGate) {
+  const JoinOptions options = options_for(JoinAssociation::Rjc);
+  ASSERT_EQ(options.rjc.confidence, 0.99);
+  // Far from the base the true pairs lie beyond the first search's pruning gate (13.8), within
+  // the second's (23.0); the decoys make the first search's overlap, which it cannot pair.
+  const DriftedJoin drifted = drifted_join(0.045, 20);
+  const std::vector<double>& d2 = drifted.true_pair_distance_sq;
+  const auto beyond = std::count_if(d2.begin(), d2.end(), [](double d) { return d > chi2_quantile(2, 0.999); });
+  ASSERT_GT(beyond, 30);
+  ASSERT_LT(*std::max_element(d2.begin(), d2.end()), chi2_quantile(2, 0.99999));
+  const JoinFrame frame(drifted.first, drifted.second);
+  const JoinAssociationResult result = associate_maps(frame, options);
+  EXPECT_TRUE(result.widened);
+  EXPECT_EQ(result.pairs.size(), 60u);
+  EXPECT_EQ(count_wrong(result.pairs, drifted.first, drifted.second), 0);
+  // Bitwise the same in slices, across the restart.
+  for (std::int64_t budget : {1, 300}) {
+    JoinAssociator associator(frame, options);
+    while (!associator.done()) associator.advance(budget);
+    EXPECT_EQ(associator.result().pairs, result.pairs);
+    EXPECT_EQ(associator.result().tries, result.tries);
+    EXPECT_TRUE(associator.result().widened);
+  }
+  // Through a join, to its report.
+  MapJoin join(std::make_shared<const GaussianMap>(drifted.first), std::make_shared<const GaussianMap>(drifted.second),
+               options);
+  join.finish();
+  EXPECT_TRUE(join.report().widened);
+  EXPECT_EQ(join.report().pairings, 60);
+
+  // A drift within the gate: the first search pairs the whole overlap, no second search.
+  const DriftedJoin small_drift = drifted_join(0.03, 20);
+  ASSERT_LT(*std::max_element(small_drift.true_pair_distance_sq.begin(), small_drift.true_pair_distance_sq.end()),
+            chi2_quantile(2, 0.99));
+  const JoinAssociationResult within = associate_maps(JoinFrame(small_drift.first, small_drift.second), options);
+  EXPECT_FALSE(within.widened);
+  EXPECT_EQ(within.pairs.size(), 60u);
+  EXPECT_EQ(count_wrong(within.pairs, small_drift.first, small_drift.second), 0);
+}
 }  // namespace
 }  // namespace dcslam

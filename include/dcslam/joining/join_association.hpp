@@ -4,9 +4,10 @@
 // covariance P_ii + P_jj - P_ij - P_ji, then JCBB over the whole overlap ("jcbb") or RJC
 // (the paper's Algorithm 3, "rjc"). The individual gate only prunes, at a tenth of the
 // decision gate's tail (0.999 for a confidence of 0.99; the overlap counts features with a
-// candidate at that level); pairs are accepted by the joint or conditional test at
-// JoinOptions::rjc.confidence (SlamConfig::gate_confidence), or, by RJC on an overlap of at
-// least kLargeOverlap features, at JoinOptions::large_overlap_confidence.
+// candidate at that level; a thousandth in JoinAssociator's second search); pairs are
+// accepted by the joint or conditional test at JoinOptions::rjc.confidence
+// (SlamConfig::gate_confidence), or, by RJC on an overlap of at least kLargeOverlap features,
+// at JoinOptions::large_overlap_confidence.
 #include <cstdint>
 #include <optional>
 #include <utility>
@@ -43,6 +44,18 @@ inline constexpr int kLargeOverlap = 50;
 // commits only to what its rivals agree on").
 inline constexpr int kRivalMinOverlap = 100;
 
+// A join whose RJC pairs fewer than this share of its overlap searches again at a wider
+// pruning gate (JoinAssociator, "A second search at a wider gate"), unless its candidate lists
+// hold more than kWideSearchMaxCandidatesPerFeature candidates per overlap feature. Victoria
+// Park's local-map sizes 45 and 80 closed a loop wrongly with 22 % and 27 % of their overlap
+// paired; the simulator's lawn joins that pair 59-70 % of theirs gain nothing from a second
+// search (docs/data_association.md, "A second search at a wider gate").
+inline constexpr double kWideSearchBelowShare = 0.5;
+// Crowded candidate lists (the paper's loop closed at large uncertainty: 20-90 candidates per
+// feature) mean an ambiguous overlap, which a wider gate only makes more so; the Victoria Park
+// joins rescued hold 1.1-2.1.
+inline constexpr double kWideSearchMaxCandidatesPerFeature = 4.0;
+
 // Measurement = feature j of the moved m2, feature = feature i of m1; the innovation of the
 // pairing is f'_j - f_i, whose covariance is P_ii + P_jj - P_ij - P_ji in the stacked map,
 // plus feature_sigma^2 I for each feature the two pairings share (each feature carries its
@@ -72,6 +85,7 @@ struct JoinAssociationResult {
   int overlap = 0;
   int tries = 0;
   bool chunked = false;  // the pairs are chunked JCBB's, which paired more than RJC
+  bool widened = false;  // the pairs are the second search's, at the wider pruning gate
   // RJC's pairings (i in m1, j in m2) left out because a rival hypothesis disagrees
   // (JoinOptions::rjc.rival_margin).
   std::vector<std::pair<Eigen::Index, Eigen::Index>> disputed;
@@ -111,6 +125,17 @@ JoinAssociationResult associate_maps(const JoinFrame& frame, const JoinOptions& 
 // (m2's features in map order) and lets each chunk correct the relative pose for the next,
 // as the EKF does sighting by sighting. Neither wins everywhere: chunks alone collapse where
 // an early chunk goes wrong (docs/data_association.md, "The EKF's order at large joins").
+//
+// A second search at a wider gate: where RJC ran and paired fewer than kWideSearchBelowShare
+// of the overlap over uncrowded candidates, the association is made again from the start with
+// the pruning gate at a thousandth of the decision gate's tail instead of a tenth, and its
+// hypothesis is kept if it pairs more (JoinAssociationResult::widened). Where the maps'
+// relative pose is off by more than its covariance allows (a large loop closed after a drift
+// that the linearised covariances understate), every true pair sits at about the same
+// marginal D^2, beyond the first gate: the first search sees only the pairs near the junction
+// and chance neighbours, while the joint and conditional tests, which explain a shared offset
+// away, accept the true hypothesis once its pairs are candidates. The decisions stay at the
+// same confidence; only what is offered to them grows.
 class JoinAssociator : public ResumableWork<JoinAssociator> {
  public:
   JoinAssociator(const JoinFrame& frame, const JoinOptions& options);
@@ -140,7 +165,10 @@ class JoinAssociator : public ResumableWork<JoinAssociator> {
   // Chunked JCBB's settings at this join (the hypothesis to beat is RJC's, set once known).
   ChunkedJcbbOptions chunked_options() const;
   std::int64_t run_jcbb();
+  // The search's end: the second search started, or the result made from `feature_of`.
   void conclude(std::vector<int> feature_of);
+  bool wider_gate_wanted(const std::vector<int>& feature_of) const;
+  void search_again_wider(std::vector<int> feature_of);
   // Marks each pair of result_.pairs doubtful or not, from the candidate lists.
   void mark_doubtful();
   // JoinOracle: its pairing (per m2 feature, its m1 partner or kStar), the audit of that
@@ -168,6 +196,16 @@ class JoinAssociator : public ResumableWork<JoinAssociator> {
   Eigen::Index next_second_ = 0;  // next m2 feature whose candidates are searched
   std::optional<RjcSearch> rjc_;
   std::optional<ChunkedJcbb> chunked_;
+  // The first search, while the second one runs.
+  struct NarrowSearch {
+    std::vector<int> feature_of;
+    JoinAssociationResult result;
+    CandidateLists candidates;
+    std::int64_t candidate_count = 0;
+    double confidence = 0.0;
+    double pruning_gate = 0.0;
+  };
+  std::optional<NarrowSearch> narrow_;
 };
 
 }  // namespace dcslam

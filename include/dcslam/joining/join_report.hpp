@@ -50,6 +50,7 @@ struct JoinReport {
   int pairings = 0;  // matched pairs imposed as constraints
   int tries = 0;     // RJC hypotheses tried (0 for other modes)
   bool chunked = false;  // the pairs are chunked JCBB's, which paired more than RJC
+  bool widened = false;  // the pairs are the second search's, at a wider pruning gate
   int dropped_tentative = 0;  // tentative features left unmatched (marginalised)
   // A weak join's pairs with a feature seen once, left to the next join's decision
   // (join_alternatives.hpp); 0 when its result is final.
