@@ -326,16 +326,15 @@ bool JoinAssociator::wider_gate_wanted(const std::vector<int>& feature_of) const
          static_cast<double>(candidate_count_) <= kWideSearchMaxCandidatesPerFeature * result_.overlap;
 }
 
-// The first search's state is kept whole (its candidates decide which pairs are doubtful),
-// and the association starts again from prepare() at the wide pruning gate.
+// The first search's result is kept with what conclude() reads if it wins (its candidates
+// decide which pairs are doubtful, its confidence the oracle's audit), and the association
+// starts again from prepare() at the wide pruning gate.
 void JoinAssociator::search_again_wider(std::vector<int> feature_of) {
   narrow_.emplace();
   narrow_->feature_of = std::move(feature_of);
   narrow_->result = std::move(result_);
   narrow_->candidates = std::move(candidates_);
-  narrow_->candidate_count = candidate_count_;
   narrow_->confidence = confidence_;
-  narrow_->pruning_gate = pruning_gate_;
   result_ = JoinAssociationResult();
   candidates_ = CandidateLists();
   candidate_count_ = 0;
@@ -359,9 +358,7 @@ void JoinAssociator::conclude(std::vector<int> feature_of) {
       feature_of = std::move(narrow_->feature_of);
       result_ = std::move(narrow_->result);
       candidates_ = std::move(narrow_->candidates);
-      candidate_count_ = narrow_->candidate_count;
       confidence_ = narrow_->confidence;
-      pruning_gate_ = narrow_->pruning_gate;
     } else {
       result_.widened = true;
     }

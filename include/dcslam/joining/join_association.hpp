@@ -208,9 +208,7 @@ class JoinAssociator : public ResumableWork<JoinAssociator> {
     std::vector<int> feature_of;
     JoinAssociationResult result;
     CandidateLists candidates;
-    std::int64_t candidate_count = 0;
     double confidence = 0.0;
-    double pruning_gate = 0.0;
   };
   std::optional<NarrowSearch> narrow_;
 };
