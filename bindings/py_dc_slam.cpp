@@ -119,6 +119,12 @@ void define_dc_slam(py::module_& m) {
              for (const JoinEvent& event : slam.joins()) out.append(pairing_dict(event.pairing));
              return out;
            })
+      .def("fold_joins",
+           [](const DCSlam& slam) {
+             py::list out;
+             for (const JoinEvent& event : slam.fold_joins()) out.append(join_event_dict(event));
+             return out;
+           })
       .def("fold_pairings",
            [](const DCSlam& slam) {
              py::list out;

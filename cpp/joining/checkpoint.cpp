@@ -840,8 +840,8 @@ struct CheckpointAccess {
       out.pod(value);
     }
     save_aliases(out, f.estimate_aliases_);
-    out.count(f.fold_pairings_.size());
-    for (const JoinPairingRecord& record : f.fold_pairings_) save_pairing(out, record);
+    out.count(f.fold_joins_.size());
+    for (const JoinEvent& event : f.fold_joins_) save_event(out, event);
     save_tree(out, f);
     save_stats(out, f.stats_);
   }
@@ -890,8 +890,8 @@ struct CheckpointAccess {
       f->closed_maps_counters_[name] = in.pod<double>();
     }
     f->estimate_aliases_ = load_aliases(in);
-    f->fold_pairings_.resize(in.count(8));
-    for (JoinPairingRecord& record : f->fold_pairings_) record = load_pairing(in);
+    f->fold_joins_.resize(in.count(8));
+    for (JoinEvent& event : f->fold_joins_) event = load_event(in);
     load_tree(in, *f);
     f->stats_ = load_stats(in);
     in.finish();

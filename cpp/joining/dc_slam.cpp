@@ -800,12 +800,17 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
     auto join = std::make_shared<DecidingJoin>(input.map, std::move(state.joined), std::move(make),
                                                weak_pairings(!last), /*spans_many_maps=*/true);
     run_fold_join(*join, inputs, position, associate_only);  // at most the inputs and the result are alive
-    state.records.push_back(join->join().pairing_record());
+    JoinEvent event;
+    event.index = static_cast<int>(position);
+    event.leaves = static_cast<int>(state.leaves + input.leaves);
+    event.step_created = event.step_finished = steps_;
+    event.pairing = join->join().pairing_record();
+    state.joins.push_back(std::move(event));
     // A weak fold join's record lists the pairs of the version this one took (a real join's
     // record is corrected only when a real join decides).
     if (join->second_version_taken() > 0) {
       const JoinAlternative& alternative = *previous_alternative;
-      state.records[fold_position(alternative.join_index)].pairs =
+      state.joins[fold_position(alternative.join_index)].pairing.pairs =
           alternative.ids_of(join->second_version_taken()).record_pairs();
     }
     if (associate_only) {
@@ -846,6 +851,7 @@ void DCSlam::run_fold_join(DecidingJoin& join, const std::vector<FoldInput>& inp
 
 void DCSlam::take_fold_join(FoldState& state, DecidingJoin& join, const std::vector<FoldInput>& inputs,
                             std::size_t position) const {
+  state.joins[position].report = join.report();
   DecidedJoin decided = join.take_result(
       [](const TreeMap& first, const TreeMap& second, const MapJoin& made) {
         return unmatched_tentative(first.tentative, second.tentative, made);
@@ -876,7 +882,7 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
     if (version > 0) {
       const JoinAlternative::Version& taken = alternative->versions[static_cast<std::size_t>(version - 1)];
       start.joined = TreeMap{taken.map, taken.tentative, nullptr};
-      start.records[weak].pairs = alternative->ids_of(version).record_pairs();
+      start.joins[weak].pairing.pairs = alternative->ids_of(version).record_pairs();
     }
     record_ids(alternative->ids_of(version), start.aliases, start.sightings);
     return start;
@@ -892,7 +898,7 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
     for (int version = 0; version <= versions; ++version) {
       const FoldState next = fold(start_of(version), inputs, position, associations, /*comparing_versions=*/true,
                                   position + 1);
-      const std::size_t next_pairs = next.records[position].pairs.size();
+      const std::size_t next_pairs = next.joins[position].pairing.pairs.size();
       if (version == 0) {
         next_of_made = next_pairs;
       } else if (next_pairs > next_of_made) {
@@ -908,7 +914,7 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
   for (const int version : compared) {
     FoldState rest = fold(start_of(version), inputs, position, associations, /*comparing_versions=*/true);
     std::size_t pairs = 0;
-    for (std::size_t k = weak; k < rest.records.size(); ++k) pairs += rest.records[k].pairs.size();
+    for (std::size_t k = weak; k < rest.joins.size(); ++k) pairs += rest.joins[k].pairing.pairs.size();
     if (version == 0 || pairs > best_pairs) {
       best = std::move(rest);
       best_pairs = pairs;
@@ -1039,7 +1045,7 @@ Estimate DCSlam::estimate() const {
   {
     std::lock_guard<std::mutex> lock(mutex_);
     estimate_aliases_ = std::move(aliases);
-    fold_pairings_ = std::move(state.records);
+    fold_joins_ = std::move(state.joins);
   }
   // Means and ids first: release_covariance() moves P out without a copy and empties the map.
   Estimate estimate = to_estimate(*joined, Eigen::MatrixXd());
@@ -1241,9 +1247,16 @@ std::vector<JoinEvent> DCSlam::joins() const {
   return events_;
 }
 
+std::vector<JoinEvent> DCSlam::fold_joins() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return fold_joins_;
+}
+
 std::vector<JoinPairingRecord> DCSlam::fold_pairings() const {
   std::lock_guard<std::mutex> lock(mutex_);
-  return fold_pairings_;
+  std::vector<JoinPairingRecord> records;
+  for (const JoinEvent& event : fold_joins_) records.push_back(event.pairing);
+  return records;
 }
 
 std::vector<std::pair<int, std::int64_t>> DCSlam::stack_shape() const {

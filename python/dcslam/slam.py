@@ -366,10 +366,17 @@ class DCSlamStats(SlamStats):
             ``work_units`` (all three include the associations of the version combinations
             not chosen and the joins of the other versions).
         stack: (local maps, features) of each map on the stack, bottom first.
+        fold_joins: the joins of the last :meth:`DCSlam.estimate`'s final fold (the stack's
+            maps, top first, each joined with everything after it; empty before the first
+            ``estimate()``), as dicts with the keys of ``joins``: ``index`` is the position in
+            the fold, ``leaves`` the local maps joined so far, ``step_created`` and
+            ``step_finished`` the step ``estimate()`` was called at. Its last join closes
+            whatever loop the run ended on.
     """
 
     joins: List[Dict[str, Any]] = dataclasses.field(default_factory=list)
     stack: List[tuple] = dataclasses.field(default_factory=list)
+    fold_joins: List[Dict[str, Any]] = dataclasses.field(default_factory=list)
 
 
 class DCSlam(SlamFilter):
@@ -406,7 +413,8 @@ class DCSlam(SlamFilter):
     @property
     def stats(self) -> DCSlamStats:
         """Per-step timings and counts, join events and the stack; see :class:`DCSlamStats`."""
-        return DCSlamStats(**self._core.stats, joins=self._core.joins(), stack=self._core.stack_shape())
+        return DCSlamStats(**self._core.stats, joins=self._core.joins(), stack=self._core.stack_shape(),
+                           fold_joins=self._core.fold_joins())
 
     def join_pairings(self) -> list:
         """What each real join's association saw and decided, by feature id, in the order of

@@ -155,6 +155,15 @@ def test_a_deep_copy_goes_on_as_the_original(sim, uninterrupted, case):
     assert len(twin.stats.step_seconds) == len(slam.stats.step_seconds) == 1000
 
 
+def test_a_copy_keeps_the_last_estimates_fold_joins(sim):
+    slam = make_filter("dc_amortized")
+    run_steps(slam, sim, 0, 700)
+    final(slam)
+    twin = copy.deepcopy(slam)
+    assert len(slam.stats.fold_joins) > 0
+    assert twin.stats.fold_joins == slam.stats.fold_joins  # their seconds too: the record is kept
+
+
 def core_state(case):
     slam = make_filter(case)
     run_steps(slam, scene(), 0, 100)

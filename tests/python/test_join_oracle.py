@@ -202,6 +202,32 @@ def test_audit_changes_nothing_and_records_the_true_pairs(scene):
     assert reasons["made"] > 10 * (reasons["lost"] + reasons["inconsistent"]) > 0
 
 
+def test_fold_joins_report_each_join_of_the_final_fold(scene):
+    sim, *_ = scene
+    slam, _ = run(sim)
+    assert slam.stats.fold_joins == []  # no estimate() yet
+    slam.estimate()
+    fold, records = slam.stats.fold_joins, slam.fold_pairings()
+    assert len(fold) == len(records) == len(slam.stats.stack) > 0
+    local_maps = [maps for maps, _ in reversed(slam.stats.stack)]  # the fold takes the stack top first
+    for k, (join, record) in enumerate(zip(fold, records)):
+        assert join["index"] == k
+        assert join["leaves"] == 1 + sum(local_maps[: k + 1])  # the open local map and those folded
+        assert join["step_created"] == join["step_finished"] == len(sim.steps)
+        assert join["features_first"] == len(record["first_ids"])
+        assert join["features_second"] == len(record["second_ids"])
+        # A weak fold join's record lists the pairs of the version the next one took.
+        if join["deferred_pairings"] == 0:
+            assert join["pairings"] == len(record["pairs"])
+        else:
+            assert join["pairings"] >= len(record["pairs"])
+        # The fold keeps every tentative feature (none is dropped as a real join's may be).
+        assert join["features_joined"] == join["features_first"] + join["features_second"] - join["pairings"]
+        assert join["seconds"] > 0.0
+    # The fold's last join holds the whole map before the final duplicate merge.
+    assert fold[-1]["leaves"] == 1 + sum(local_maps)
+
+
 def test_audit_of_a_truth_run_marks_every_pair_made():
     sim = dcslam.revisit_scenario("loop_both_ways", 1)
     _, returned = run(sim)

@@ -94,3 +94,6 @@ def test_dc_map_does_not_depend_on_where_local_maps_end(victoria_park, whole_run
     # within 2 m; the default 30: 96 % within 1 m).
     agreement = map_agreement(result.estimate, ekf.estimate, radius=2.0)
     assert min(agreement.first_in_second, agreement.second_in_first) > 0.8
+    # The repair is the second search's, and a user sees where it was made: a real join at 45,
+    # the final fold's second join at 80.
+    assert any(join["widened"] for join in result.stats.joins + result.stats.fold_joins)

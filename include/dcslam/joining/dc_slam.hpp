@@ -89,8 +89,11 @@ class DCSlam : public SlamFilter {
   // The stack's shape, bottom first: local maps held by each map, and its feature count
   // (expected count for a pending join: the sum of its inputs).
   std::vector<std::pair<int, std::int64_t>> stack_shape() const;
-  // What each join of the last estimate()'s final fold saw and decided (the stack's maps,
-  // top first, each joined with everything after it), as in JoinEvent::pairing: for diagnosis.
+  // The joins of the last estimate()'s final fold (the stack's maps, top first, each joined
+  // with everything after it), as joins() reports the real ones: `index` is the position in the
+  // fold, `leaves` the local maps joined so far, both steps the step estimate() was called at.
+  std::vector<JoinEvent> fold_joins() const;
+  // What each of them saw and decided (JoinEvent::pairing): for diagnosis.
   std::vector<JoinPairingRecord> fold_pairings() const;
   // Blocks until every queued join is done (threaded mode) or runs them (other modes).
   void finish_joins();
@@ -275,7 +278,7 @@ class DCSlam : public SlamFilter {
     std::shared_ptr<GaussianMap> result;  // joined's map as the last fold join made it, mutable
     IdAliases aliases;
     SightingsById sightings;
-    std::vector<JoinPairingRecord> records;
+    std::vector<JoinEvent> joins;  // by position; each report is set when the join is made
     std::int64_t leaves = 1;  // local maps folded, the open one included
     // Set when a fold comparing versions took a later weak fold join (of kMinWeakJoinLeaves
     // local maps or more) as made: the state just after the first such join, its alternative
@@ -387,7 +390,7 @@ class DCSlam : public SlamFilter {
   // The merges of the joins the last estimate() made on copies: resolve() follows them until
   // the next predict() or update(), so that ids resolve to that estimate's landmarks.
   mutable IdAliases estimate_aliases_;
-  mutable std::vector<JoinPairingRecord> fold_pairings_;  // of the last estimate()
+  mutable std::vector<JoinEvent> fold_joins_;  // of the last estimate()
   // The pending joins estimate() computed on the side, until the first step after they
   // complete (begin_step()); front end only.
   mutable std::vector<MaterializedJoin> materialized_;
