@@ -126,15 +126,24 @@ def association_difference(first_ids, second_ids, pairs: Dict[int, int]) -> Dict
     return counts
 
 
+def _per_measurement(first_ids: Sequence, second_ids: Sequence):
+    """The two runs' ids of each step as int64 arrays, step by step."""
+    for a_ids, b_ids in zip(first_ids, second_ids):
+        yield np.asarray(a_ids, dtype=np.int64), np.asarray(b_ids, dtype=np.int64)
+
+
+def _same_landmark(a_ids: np.ndarray, b_ids: np.ndarray, pairs: Dict[int, int]) -> np.ndarray:
+    """Per measurement: the first run's landmark is the second run's, by ``pairs``."""
+    return np.array([a >= 0 and pairs.get(int(a)) == int(b) for a, b in zip(a_ids, b_ids)], dtype=bool)
+
+
 def undisputed_ids(first_ids: Sequence, second_ids: Sequence, pairs: Dict[int, int]) -> List[np.ndarray]:
     """The second run's ids less the measurements both runs associate, with landmarks that are
     not the same by ``pairs`` (-1 there): what the second run's associations are without the
     measurements the two runs dispute."""
     out = []
-    for a_ids, b_ids in zip(first_ids, second_ids):
-        a_ids, b_ids = np.asarray(a_ids, dtype=np.int64), np.asarray(b_ids, dtype=np.int64)
-        disputed = np.array([a >= 0 and b >= 0 and pairs.get(int(a)) != int(b) for a, b in zip(a_ids, b_ids)],
-                            dtype=bool)
+    for a_ids, b_ids in _per_measurement(first_ids, second_ids):
+        disputed = (a_ids >= 0) & (b_ids >= 0) & ~_same_landmark(a_ids, b_ids, pairs)
         out.append(np.where(disputed, -1, b_ids))
     return out
 
@@ -154,12 +163,8 @@ def gps_rms(steps: Sequence, poses: np.ndarray, gps) -> Optional[float]:
 def consensus_ids(first_ids: Sequence, second_ids: Sequence, pairs: Dict[int, int]) -> List[np.ndarray]:
     """The first run's ids where both runs associate the measurement with the same landmark
     (by ``pairs``), -1 elsewhere."""
-    out = []
-    for a_ids, b_ids in zip(first_ids, second_ids):
-        a_ids, b_ids = np.asarray(a_ids, dtype=np.int64), np.asarray(b_ids, dtype=np.int64)
-        same = np.array([a >= 0 and pairs.get(int(a)) == int(b) for a, b in zip(a_ids, b_ids)], dtype=bool)
-        out.append(np.where(same, a_ids, -1))
-    return out
+    return [np.where(_same_landmark(a_ids, b_ids, pairs), a_ids, -1)
+            for a_ids, b_ids in _per_measurement(first_ids, second_ids)]
 
 
 def mahalanobis_summary(difference: Dict[int, np.ndarray], covariance: Dict[int, np.ndarray]) -> Dict[str, float]:
