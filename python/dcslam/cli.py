@@ -369,6 +369,7 @@ def _summary_table(name: str, results, alignments, map_alignments, agreement, sc
     row("final estimate (ms)", [f"{1e3 * r.estimate_seconds:.2f}" for r in results])
     row("D&C joins (pairings)", [f"{len(r.joins)} ({c['join_pairings']})" if r.filter_name == "dc" else "-"
                                  for r, c in zip(results, counts)])
+    row("D&C final fold's last join: pairings / overlap", [_last_fold_join(r) for r in results])
     if alignments:
         row("GPS RMS after rigid alignment (m)",
             [f"{alignments[r.filter_name].rms:.2f}" if r.filter_name in alignments else "-" for r in results])
@@ -383,6 +384,16 @@ def _summary_table(name: str, results, alignments, map_alignments, agreement, sc
     if scores:
         _truth_rows(row, [scores[r.filter_name] for r in results])
     return table
+
+
+def _last_fold_join(result) -> str:
+    """The join that closes whatever loop a D&C run ends on: its pairs of its overlap, and how
+    they were found when not by RJC's first search alone."""
+    if not result.fold_joins:
+        return "-"
+    join = result.fold_joins[-1]
+    how = [name for name, made in (("chunked JCBB", join["chunked"]), ("wider search", join["widened"])) if made]
+    return f"{join['pairings']} / {join['overlap']}" + (f" ({', '.join(how)})" if how else "")
 
 
 def _truth_rows(row, scores) -> None:

@@ -152,8 +152,9 @@ def write_stats_json(path: PathLike, result, extra: Optional[Dict[str, Any]] = N
 
     Keys: ``summary`` (totals, map size, joins, association counts), ``config``,
     ``per_step`` (``t``, ``seconds``, ``num_features``, ``measurements``, ``paired``,
-    ``new_features``, ``rejected``), ``joins`` (D&C join events), ``counters``, and the
-    entries of ``extra`` (e.g. ``gps_alignment``).
+    ``new_features``, ``rejected``), ``joins`` (D&C join events), ``fold_joins`` (the joins of
+    D&C's final fold, ``DCSlamStats.fold_joins``), ``counters``, and the entries of ``extra``
+    (e.g. ``gps_alignment``).
     """
     stats = result.stats
     document = {
@@ -169,6 +170,7 @@ def write_stats_json(path: PathLike, result, extra: Optional[Dict[str, Any]] = N
             "rejected": stats.rejected,
         },
         "joins": result.joins,
+        "fold_joins": result.fold_joins,
         "counters": stats.counters,
         **(extra or {}),
     }

@@ -137,6 +137,12 @@ class PipelineResult:
         return list(self.stats.joins) if isinstance(self.stats, DCSlamStats) else []
 
     @property
+    def fold_joins(self) -> list:
+        """The joins of D&C's final fold (``DCSlamStats.fold_joins``; the last one closes a loop
+        the run ends on); empty for the EKF."""
+        return list(self.stats.fold_joins) if isinstance(self.stats, DCSlamStats) else []
+
+    @property
     def map_size(self) -> int:
         return len(self.estimate.landmarks)
 

@@ -51,7 +51,14 @@ def test_run_isam_writes_outputs(tmp_path):
         stats = json.loads((tmp_path / f"stats_{name}.json").read_text())
         assert stats["summary"]["steps"] == 300 and stats["summary"]["map_size"] == n
         assert (tmp_path / f"map_{name}.png").stat().st_size > 0
-    assert json.loads((tmp_path / "stats_dc.json").read_text())["summary"]["joins"] > 0
+    dc_document = json.loads((tmp_path / "stats_dc.json").read_text())
+    assert dc_document["summary"]["joins"] > 0
+    # The final fold's joins, the last of which the summary table reports.
+    last = dc_document["fold_joins"][-1]
+    assert last["index"] == len(dc_document["fold_joins"]) - 1 > 0
+    [row] = [line for line in out.stdout.splitlines() if "fold's last join" in line]
+    assert row.split("│")[-2].strip() == f"{last['pairings']} / {last['overlap']}"
+    assert json.loads((tmp_path / "stats_ekf.json").read_text())["fold_joins"] == []
     assert (tmp_path / "timing.png").stat().st_size > 0
     # This file's steps see at most 2 landmarks each: no step gets a map-refit pose, and the
     # map-refit files are written without poses (test_cli_mrclam.py has them with poses).
