@@ -87,7 +87,7 @@ def timing_free(stats):
     stats["per_step"].pop("seconds")
     for key in ("total_seconds", "worst_step_seconds", "estimate_seconds", "wall_seconds"):
         stats["summary"].pop(key)
-    for join in stats["joins"]:
+    for join in stats["joins"] + stats["fold_joins"]:
         for key in ("seconds", "seconds_association"):
             join.pop(key)
     stats["counters"] = {k: v for k, v in stats["counters"].items() if "seconds" not in k}
