@@ -126,7 +126,7 @@ def association_difference(first_ids, second_ids, pairs: Dict[int, int]) -> Dict
     return counts
 
 
-def _per_measurement(first_ids: Sequence, second_ids: Sequence):
+def _per_step(first_ids: Sequence, second_ids: Sequence):
     """The two runs' ids of each step as int64 arrays, step by step."""
     for a_ids, b_ids in zip(first_ids, second_ids):
         yield np.asarray(a_ids, dtype=np.int64), np.asarray(b_ids, dtype=np.int64)
@@ -142,7 +142,7 @@ def undisputed_ids(first_ids: Sequence, second_ids: Sequence, pairs: Dict[int, i
     not the same by ``pairs`` (-1 there): what the second run's associations are without the
     measurements the two runs dispute."""
     out = []
-    for a_ids, b_ids in _per_measurement(first_ids, second_ids):
+    for a_ids, b_ids in _per_step(first_ids, second_ids):
         disputed = (a_ids >= 0) & (b_ids >= 0) & ~_same_landmark(a_ids, b_ids, pairs)
         out.append(np.where(disputed, -1, b_ids))
     return out
@@ -164,7 +164,7 @@ def consensus_ids(first_ids: Sequence, second_ids: Sequence, pairs: Dict[int, in
     """The first run's ids where both runs associate the measurement with the same landmark
     (by ``pairs``), -1 elsewhere."""
     return [np.where(_same_landmark(a_ids, b_ids, pairs), a_ids, -1)
-            for a_ids, b_ids in _per_measurement(first_ids, second_ids)]
+            for a_ids, b_ids in _per_step(first_ids, second_ids)]
 
 
 def mahalanobis_summary(difference: Dict[int, np.ndarray], covariance: Dict[int, np.ndarray]) -> Dict[str, float]:

@@ -802,7 +802,6 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
     run_fold_join(*join, inputs, position, associate_only);  // at most the inputs and the result are alive
     JoinEvent event;
     event.index = static_cast<int>(position);
-    event.leaves = static_cast<int>(state.leaves + input.leaves);
     event.step_created = event.step_finished = steps_;
     event.pairing = join->join().pairing_record();
     state.joins.push_back(std::move(event));
@@ -851,7 +850,8 @@ void DCSlam::run_fold_join(DecidingJoin& join, const std::vector<FoldInput>& inp
 
 void DCSlam::take_fold_join(FoldState& state, DecidingJoin& join, const std::vector<FoldInput>& inputs,
                             std::size_t position) const {
-  state.joins[position].report = join.report();
+  JoinEvent& event = state.joins[position];
+  event.report = join.report();
   DecidedJoin decided = join.take_result(
       [](const TreeMap& first, const TreeMap& second, const MapJoin& made) {
         return unmatched_tentative(first.tentative, second.tentative, made);
@@ -861,6 +861,7 @@ void DCSlam::take_fold_join(FoldState& state, DecidingJoin& join, const std::vec
   state.joined = decided.tree_map();
   state.result = std::move(decided.map);
   state.leaves += inputs[position].leaves;
+  event.leaves = static_cast<int>(state.leaves);
 }
 
 void DCSlam::make_last_fold_join(FoldState& state, const std::vector<FoldInput>& inputs) const {

@@ -278,7 +278,7 @@ class DCSlam : public SlamFilter {
     std::shared_ptr<GaussianMap> result;  // joined's map as the last fold join made it, mutable
     IdAliases aliases;
     SightingsById sightings;
-    std::vector<JoinEvent> joins;  // by position; each report is set when the join is made
+    std::vector<JoinEvent> joins;  // by position; report and leaves are set when the join is made
     std::int64_t leaves = 1;  // local maps folded, the open one included
     // Set when a fold comparing versions took a later weak fold join (of kMinWeakJoinLeaves
     // local maps or more) as made: the state just after the first such join, its alternative
