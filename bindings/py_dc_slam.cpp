@@ -55,6 +55,18 @@ py::dict join_event_dict(const JoinEvent& event) {
   return out;
 }
 
+py::list event_dicts(const std::vector<JoinEvent>& events) {
+  py::list out;
+  for (const JoinEvent& event : events) out.append(join_event_dict(event));
+  return out;
+}
+
+py::list pairing_dicts(const std::vector<JoinEvent>& events) {
+  py::list out;
+  for (const JoinEvent& event : events) out.append(pairing_dict(event.pairing));
+  return out;
+}
+
 }  // namespace
 
 void define_dc_slam(py::module_& m) {
@@ -70,12 +82,7 @@ void define_dc_slam(py::module_& m) {
             return py::bytes(bytes);
           },
           [](const py::bytes& state) { return load_dc_checkpoint(std::string_view(state)); }))
-      .def("joins",
-           [](const DCSlam& slam) {
-             py::list out;
-             for (const JoinEvent& event : slam.joins()) out.append(join_event_dict(event));
-             return out;
-           })
+      .def("joins", [](const DCSlam& slam) { return event_dicts(slam.joins()); })
       .def("set_join_oracle",
            [](DCSlam& slam, const std::vector<std::int64_t>& feature_ids,
               const std::vector<std::int64_t>& landmark_ids, const std::string& mode,
@@ -113,24 +120,11 @@ void define_dc_slam(py::module_& m) {
            },
            py::arg("feature_ids"), py::arg("landmark_ids"), py::arg("mode"), py::arg("min_first_features") = 0,
            py::arg("max_first_features") = py::none())
-      .def("join_pairings",
-           [](const DCSlam& slam) {
-             py::list out;
-             for (const JoinEvent& event : slam.joins()) out.append(pairing_dict(event.pairing));
-             return out;
-           })
-      .def("fold_joins",
-           [](const DCSlam& slam) {
-             py::list out;
-             for (const JoinEvent& event : slam.fold_joins()) out.append(join_event_dict(event));
-             return out;
-           })
-      .def("fold_pairings",
-           [](const DCSlam& slam) {
-             py::list out;
-             for (const JoinPairingRecord& record : slam.fold_pairings()) out.append(pairing_dict(record));
-             return out;
-           })
+      .def("join_pairings", [](const DCSlam& slam) { return pairing_dicts(slam.joins()); })
+      .def("fold_joins", [](const DCSlam& slam) { return event_dicts(slam.fold_joins()); })
+      .def("fold_pairings", [](const DCSlam& slam) { return pairing_dicts(slam.fold_joins()); })
+      .def("side_joins", [](const DCSlam& slam) { return event_dicts(slam.side_joins()); })
+      .def("side_join_pairings", [](const DCSlam& slam) { return pairing_dicts(slam.side_joins()); })
       .def("tree_leaves",
            [](const DCSlam& slam) {
              py::list out;

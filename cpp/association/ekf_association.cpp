@@ -383,8 +383,8 @@ void EkfAssociation::associate(const GaussianMap& map, const MeasurementsRef& z,
 bool EkfAssociation::clearly_unexplained(int measurement, double chosen_score,
                                          std::map<std::string, double>& counters) {
   if (!std::isfinite(config_.new_feature_margin)) return false;
-  const JcbbResult rival = jcbb_.best_pairing(candidates_, model_, likelihood_, measurement,
-                                              chosen_score - config_.new_feature_margin);
+  const JcbbResult rival = jcbb_.first_pairing_above(candidates_, model_, likelihood_, measurement,
+                                                     chosen_score - config_.new_feature_margin);
   counters["jcbb_nodes"] += static_cast<double>(rival.nodes_expanded);
   // A search stopped at the node bound has not shown that no rival is close.
   const bool clear = rival.pairings == 0 && !rival.bound_hit;

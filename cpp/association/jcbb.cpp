@@ -85,19 +85,30 @@ JcbbResult Jcbb::solve_ranked(const CandidateLists& ranked_candidates, const Pai
 JcbbResult Jcbb::best_pairing(const CandidateLists& ranked_candidates, const PairingModel& model,
                               const JcbbLikelihood& likelihood, int measurement,
                               double score_floor) {
+  return pairing_above(ranked_candidates, model, likelihood, measurement, score_floor, false);
+}
+
+JcbbResult Jcbb::first_pairing_above(const CandidateLists& ranked_candidates, const PairingModel& model,
+                                     const JcbbLikelihood& likelihood, int measurement, double score_floor) {
+  return pairing_above(ranked_candidates, model, likelihood, measurement, score_floor, true);
+}
+
+JcbbResult Jcbb::pairing_above(const CandidateLists& ranked_candidates, const PairingModel& model,
+                               const JcbbLikelihood& likelihood, int measurement, double score_floor,
+                               bool stop_at_first) {
   check_likelihood(ranked_candidates, likelihood);
   if (measurement < 0 || static_cast<std::size_t>(measurement) >= ranked_candidates.size()) {
-    throw InvalidArgument("Jcbb::best_pairing: measurement " + std::to_string(measurement) +
-                          " is not one of the " + std::to_string(ranked_candidates.size()) +
-                          " measurements");
+    throw InvalidArgument(std::string(stop_at_first ? "Jcbb::first_pairing_above" : "Jcbb::best_pairing") +
+                          ": measurement " + std::to_string(measurement) + " is not one of the " +
+                          std::to_string(ranked_candidates.size()) + " measurements");
   }
-  return run(ranked_candidates, model, &likelihood, true, measurement, score_floor);
+  return run(ranked_candidates, model, &likelihood, true, measurement, score_floor, stop_at_first);
 }
 
 JcbbResult Jcbb::run(const CandidateLists& candidates, const PairingModel& model,
                      const JcbbLikelihood* likelihood, bool ranked, int paired_measurement,
-                     double score_floor) {
-  prepare(candidates, model, likelihood, ranked, paired_measurement, score_floor);
+                     double score_floor, bool stop_at_first) {
+  prepare(candidates, model, likelihood, ranked, paired_measurement, score_floor, stop_at_first);
   expand(std::numeric_limits<std::int64_t>::max());
   return result();
 }
@@ -110,9 +121,10 @@ void Jcbb::start(const CandidateLists& candidates, const PairingModel& model,
 
 void Jcbb::prepare(const CandidateLists& candidates, const PairingModel& model,
                    const JcbbLikelihood* likelihood, bool ranked, int paired_measurement,
-                   double score_floor) {
+                   double score_floor, bool stop_at_first) {
   check_candidates(candidates);
   paired_measurement_ = paired_measurement;
+  stop_at_first_ = stop_at_first;
   model_ = &model;
   likelihood_ = likelihood;
   num_measurements_ = static_cast<int>(candidates.size());
@@ -223,6 +235,10 @@ void Jcbb::enter(int measurement, int depth, double distance_sq, double score) {
   if ((complete || (options_.allow_star && measurement > paired_measurement_)) &&
       can_improve(score, distance_sq)) {
     record(depth, distance_sq, score);
+    if (stop_at_first_) {
+      frames_.clear();
+      return;
+    }
   }
   if (!complete) frames_.push_back(Frame{measurement, depth, distance_sq, score, 0, false});
 }

@@ -842,6 +842,8 @@ struct CheckpointAccess {
     save_aliases(out, f.estimate_aliases_);
     out.count(f.fold_joins_.size());
     for (const JoinEvent& event : f.fold_joins_) save_event(out, event);
+    out.count(f.side_joins_.size());
+    for (const JoinEvent& event : f.side_joins_) save_event(out, event);
     save_tree(out, f);
     save_stats(out, f.stats_);
   }
@@ -892,6 +894,8 @@ struct CheckpointAccess {
     f->estimate_aliases_ = load_aliases(in);
     f->fold_joins_.resize(in.count(8));
     for (JoinEvent& event : f->fold_joins_) event = load_event(in);
+    f->side_joins_.resize(in.count(8));
+    for (JoinEvent& event : f->side_joins_) event = load_event(in);
     load_tree(in, *f);
     f->stats_ = load_stats(in);
     in.finish();

@@ -713,16 +713,18 @@ std::shared_ptr<DCSlam::FrozenNode> DCSlam::freeze(const std::shared_ptr<Node>& 
   return frozen;
 }
 
-TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settled, SettledIds& ids) const {
+TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settled, SettledIds& ids,
+                            std::vector<JoinEvent>& side_joins) const {
   if (node.map.map) return node.map;
   // Same inputs and options as the real join: the same result, computed on the side.
-  const TreeMap first = materialize(*node.left, settled, ids);
-  const TreeMap second = materialize(*node.right, settled, ids);
+  const TreeMap first = materialize(*node.left, settled, ids, side_joins);
+  const TreeMap second = materialize(*node.right, settled, ids, side_joins);
   ++estimate_pending_joins_;
   for (MaterializedJoin& made : materialized_) {
     if (made.node.lock() != node.node) continue;
     for (const JoinIds& join_ids : made.settled) record_ids(join_ids, ids.aliases, ids.sightings);
     settled.insert(settled.end(), made.settled.begin(), made.settled.end());
+    side_joins.push_back(made.event);
     ++estimate_pending_joins_reused_;
     return made.map;
   }
@@ -737,14 +739,23 @@ TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settle
                           std::to_string(node.step_created) + ") fails: " + error.what() +
                           "; the filter is unchanged until it runs that join (finish_joins() runs it now)");
   }
+  const JoinReport report = join->report();
   DecidedJoin decided = join->take_result(tentative_of(left, right), node.index);
-  MaterializedJoin made{node.node, TreeMap(), decided.settled};
+  MaterializedJoin made{node.node, TreeMap(), decided.settled, JoinEvent()};
   for (const JoinIds& join_ids : decided.settled) record_ids(join_ids, ids.aliases, ids.sightings);
   JoinIds merges;
   merges.merged = merge_after_join(left.leaves + right.leaves, decided, ids.aliases, ids.sightings);
+  made.event.index = node.index;
+  made.event.leaves = left.leaves + right.leaves;
+  made.event.step_created = node.step_created;
+  made.event.step_finished = steps_;
+  made.event.report = report;
+  made.event.pairing = join->join().pairing_record();
+  made.event.pairing.merged = merges.merged;
   if (!merges.merged.empty()) made.settled.push_back(std::move(merges));
   settled.insert(settled.end(), made.settled.begin(), made.settled.end());
   made.map = decided.tree_map();
+  side_joins.push_back(made.event);
   materialized_.push_back(std::move(made));
   return materialized_.back().map;
 }
@@ -1006,9 +1017,10 @@ Estimate DCSlam::estimate() const {
   // the fold is decided by the rest of the fold; the last one's result is final.
   std::vector<FoldInput> inputs;
   SettledIds settled_ids{merged, state.sightings};
+  std::vector<JoinEvent> side_joins;
   for (auto it = stack.rbegin(); it != stack.rend(); ++it) {
     FoldInput input;
-    input.map = materialize(**it, input.settled, settled_ids);
+    input.map = materialize(**it, input.settled, settled_ids, side_joins);
     input.robot_id = (*it)->node->robot_id;
     input.leaves = (*it)->node->leaves;
     inputs.push_back(std::move(input));
@@ -1047,6 +1059,9 @@ Estimate DCSlam::estimate() const {
     std::lock_guard<std::mutex> lock(mutex_);
     estimate_aliases_ = std::move(aliases);
     fold_joins_ = std::move(state.joins);
+    std::sort(side_joins.begin(), side_joins.end(),
+              [](const JoinEvent& a, const JoinEvent& b) { return a.index < b.index; });
+    side_joins_ = std::move(side_joins);
   }
   // Means and ids first: release_covariance() moves P out without a copy and empties the map.
   Estimate estimate = to_estimate(*joined, Eigen::MatrixXd());
@@ -1253,11 +1268,9 @@ std::vector<JoinEvent> DCSlam::fold_joins() const {
   return fold_joins_;
 }
 
-std::vector<JoinPairingRecord> DCSlam::fold_pairings() const {
+std::vector<JoinEvent> DCSlam::side_joins() const {
   std::lock_guard<std::mutex> lock(mutex_);
-  std::vector<JoinPairingRecord> records;
-  for (const JoinEvent& event : fold_joins_) records.push_back(event.pairing);
-  return records;
+  return side_joins_;
 }
 
 std::vector<std::pair<int, std::int64_t>> DCSlam::stack_shape() const {

@@ -372,11 +372,17 @@ class DCSlamStats(SlamStats):
             the fold, ``leaves`` the local maps joined so far, ``step_created`` and
             ``step_finished`` the step ``estimate()`` was called at. Its last join closes
             whatever loop the run ended on.
+        side_joins: the joins still pending that the last :meth:`DCSlam.estimate` computed on
+            the side (or took as an earlier call computed them), in creation order, with the
+            keys of ``joins``, each as ``joins`` will report the real join once it has run:
+            ``index`` is its index in ``joins``, ``step_finished`` the step of the
+            ``estimate()`` that computed it. The fold joins their results with the rest.
     """
 
     joins: List[Dict[str, Any]] = dataclasses.field(default_factory=list)
     stack: List[tuple] = dataclasses.field(default_factory=list)
     fold_joins: List[Dict[str, Any]] = dataclasses.field(default_factory=list)
+    side_joins: List[Dict[str, Any]] = dataclasses.field(default_factory=list)
 
 
 class DCSlam(SlamFilter):
@@ -414,7 +420,7 @@ class DCSlam(SlamFilter):
     def stats(self) -> DCSlamStats:
         """Per-step timings and counts, join events and the stack; see :class:`DCSlamStats`."""
         return DCSlamStats(**self._core.stats, joins=self._core.joins(), stack=self._core.stack_shape(),
-                           fold_joins=self._core.fold_joins())
+                           fold_joins=self._core.fold_joins(), side_joins=self._core.side_joins())
 
     def join_pairings(self) -> list:
         """What each real join's association saw and decided, by feature id, in the order of
@@ -449,6 +455,13 @@ class DCSlam(SlamFilter):
         with everything after it (the current local map first). Empty before the first
         ``estimate()``."""
         return [_pairing_record(record) for record in self._core.fold_pairings()]
+
+    def side_join_pairings(self) -> list:
+        """What each pending join that the last :meth:`estimate` computed on the side saw and
+        decided, as :meth:`join_pairings` does for the real joins, in the order of
+        ``stats.side_joins``; the real join, once it has run, records the same. Empty before the
+        first ``estimate()`` and when no join was pending."""
+        return [_pairing_record(record) for record in self._core.side_join_pairings()]
 
     def set_join_oracle(self, feature_ids, landmark_ids, mode: str = "truth", min_first_features: int = 0,
                         max_first_features: Optional[int] = None) -> None:

@@ -272,10 +272,11 @@ CandidateLists ranked_candidates(const Problem& problem) {
 // best_pairing(i, floor): the most likely admissible hypothesis among those that pair
 // measurement i, as exhaustive enumeration finds it, and nothing when the floor is above it.
 // The result's score is the criterion's value of the hypothesis it returns.
-TEST(Jcbb, BestPairingMatchesExhaustiveSearch) {
+// first_pairing_above(i, floor): some such hypothesis above the floor exactly when there is one.
+TEST(Jcbb, BestAndFirstPairingMatchExhaustiveSearch) {
   std::mt19937_64 rng(24);
   Jcbb solver;
-  int checked = 0, unpaired_by_best = 0;
+  int checked = 0, unpaired_by_best = 0, first_checked = 0, first_cheaper = 0;
   for (int trial = 0; trial < 300; ++trial) {
     const Problem problem = random_problem(rng, 5);
     const JcbbLikelihood likelihood = random_likelihood(rng, problem);
@@ -312,13 +313,35 @@ TEST(Jcbb, BestPairingMatchesExhaustiveSearch) {
       EXPECT_EQ(below.feature_of, rival.feature_of);
       // Cut by the floor, the search visits no more nodes than without it.
       EXPECT_LE(below.nodes_expanded, rival.nodes_expanded);
+      // Stopped at the first hypothesis above the floor: one exists exactly when the best is
+      // above it, and what it returns is a hypothesis that pairs i and scores above the floor.
+      for (const double floor : {unbounded, reference - 1.0, reference - 1e-6, reference + 1e-6}) {
+        const JcbbResult best_above = solver.best_pairing(ranked, problem.model, likelihood, i, floor);
+        const JcbbResult first = solver.first_pairing_above(ranked, problem.model, likelihood, i, floor);
+        ASSERT_FALSE(first.bound_hit);
+        ASSERT_EQ(first.pairings > 0, best_above.pairings > 0) << "trial " << trial << " measurement " << i;
+        EXPECT_LE(first.nodes_expanded, best_above.nodes_expanded);
+        if (first.pairings == 0) continue;
+        ASSERT_NE(first.feature_of[static_cast<std::size_t>(i)], kStar);
+        const double score = direct_log_likelihood_ratio(stack_hypothesis(first.feature_of, problem.model).pairings,
+                                                         problem.model, likelihood);
+        EXPECT_NEAR(first.score, score, tolerance);
+        EXPECT_GT(score, floor - tolerance);
+        EXPECT_LE(score, reference + tolerance);
+        ++first_checked;
+        if (first.nodes_expanded < best_above.nodes_expanded) ++first_cheaper;
+      }
       ++checked;
       unpaired_by_best += best.feature_of[static_cast<std::size_t>(i)] == kStar;
     }
   }
   EXPECT_GT(checked, 500);
   EXPECT_GT(unpaired_by_best, 50);  // the case the EKF asks about
+  EXPECT_GT(first_checked, 1500);
+  EXPECT_GT(first_cheaper, 100);  // the search does stop early
   EXPECT_THROW(solver.best_pairing({{}, {}}, LinearScanModel(), JcbbLikelihood{{0.0, 0.0}, {0.0, 0.0}}, 2, 0.0),
+               InvalidArgument);
+  EXPECT_THROW(solver.first_pairing_above({{}, {}}, LinearScanModel(), JcbbLikelihood{{0.0, 0.0}, {0.0, 0.0}}, -1, 0.0),
                InvalidArgument);
 }
 

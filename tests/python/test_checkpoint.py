@@ -155,13 +155,14 @@ def test_a_deep_copy_goes_on_as_the_original(sim, uninterrupted, case):
     assert len(twin.stats.step_seconds) == len(slam.stats.step_seconds) == 1000
 
 
-def test_a_copy_keeps_the_last_estimates_fold_joins(sim):
+def test_a_copy_keeps_the_last_estimates_fold_and_side_joins(sim):
     slam = make_filter("dc_amortized")
     run_steps(slam, sim, 0, 700)
-    final(slam)
+    slam.estimate()  # with the joins still pending at step 700 computed on the side
     twin = copy.deepcopy(slam)
-    assert len(slam.stats.fold_joins) > 0
+    assert len(slam.stats.fold_joins) > 0 and len(slam.stats.side_joins) > 0
     assert twin.stats.fold_joins == slam.stats.fold_joins  # their seconds too: the record is kept
+    assert twin.stats.side_joins == slam.stats.side_joins
 
 
 def core_state(case):

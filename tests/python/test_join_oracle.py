@@ -228,6 +228,42 @@ def test_fold_joins_report_each_join_of_the_final_fold(scene):
     assert fold[-1]["leaves"] == 1 + sum(local_maps)
 
 
+REPORTED = ("leaves", "step_created", "features_first", "features_second", "features_joined", "overlap", "pairings",
+            "deferred_pairings", "alternatives_taken", "duplicates_merged", "tries", "chunked", "widened", "iterations")
+
+
+def test_side_joins_report_the_pending_joins_as_the_real_joins_make_them():
+    sim = dcslam.revisit_scenario("small_loop_laps", 0)
+    slam = dcslam.DCSlam(dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=0))
+    side, side_records, pending = [], [], set()
+    for k, step in enumerate(sim.steps):
+        slam.predict(step.u, step.Q)
+        slam.update(step.z, step.R)
+        waiting = {j["index"] for j in slam.stats.joins if j["step_finished"] == -1}
+        if len(waiting) >= 2 and not pending:
+            slam.estimate()
+            side, side_records, pending = slam.stats.side_joins, slam.side_join_pairings(), waiting
+            # Asked again before any of them has run: taken as computed, the step of the first call.
+            slam.estimate()
+            assert slam.stats.side_joins == side
+            break
+    assert pending, "no step with two joins pending"
+    assert [j["index"] for j in side] == sorted(pending)  # every pending join, in creation order
+    assert all(j["step_finished"] == k + 1 for j in side)
+    slam.finish_joins()
+    real = {j["index"]: j for j in slam.stats.joins}
+    records = slam.join_pairings()
+    for join, record in zip(side, side_records):
+        assert real[join["index"]]["step_finished"] >= join["step_created"]  # it has run now
+        assert {key: join[key] for key in REPORTED} == {key: real[join["index"]][key] for key in REPORTED}
+        assert np.array_equal(record["pairs"], records[join["index"]]["pairs"])
+        assert np.array_equal(record["first_ids"], records[join["index"]]["first_ids"])
+    assert any(join["pairings"] > 0 for join in side)
+    # An estimate() with nothing pending reports no side join.
+    slam.estimate()
+    assert slam.stats.side_joins == [] and slam.side_join_pairings() == []
+
+
 def test_audit_of_a_truth_run_marks_every_pair_made():
     sim = dcslam.revisit_scenario("loop_both_ways", 1)
     _, returned = run(sim)

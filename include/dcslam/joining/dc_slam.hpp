@@ -92,9 +92,12 @@ class DCSlam : public SlamFilter {
   // The joins of the last estimate()'s final fold (the stack's maps, top first, each joined
   // with everything after it), as joins() reports the real ones: `index` is the position in the
   // fold, `leaves` the local maps joined so far, both steps the step estimate() was called at.
+  // Their `pairing` records what each saw and decided, for diagnosis.
   std::vector<JoinEvent> fold_joins() const;
-  // What each of them saw and decided (JoinEvent::pairing): for diagnosis.
-  std::vector<JoinPairingRecord> fold_pairings() const;
+  // The pending joins the last estimate() computed on the side (or took as an earlier call had
+  // computed them), in creation order, each as joins() will report the real join once it runs:
+  // `index` is the real join's, `step_finished` the step of the estimate() that computed it.
+  std::vector<JoinEvent> side_joins() const;
   // Blocks until every queued join is done (threaded mode) or runs them (other modes).
   void finish_joins();
   const SlamConfig& config() const override { return config_; }
@@ -246,16 +249,21 @@ class DCSlam : public SlamFilter {
   // tasks) as complete() finishes them, the merges after small joins included; what those
   // joins did to ids is appended to `settled`, oldest first, and recorded in `ids`. A pending
   // join computed by an earlier estimate() is taken from materialized_.
-  TreeMap materialize(const FrozenNode& node, std::vector<JoinIds>& settled, SettledIds& ids) const;
+  // Each pending join it computes or takes is reported in `side_joins`.
+  TreeMap materialize(const FrozenNode& node, std::vector<JoinIds>& settled, SettledIds& ids,
+                      std::vector<JoinEvent>& side_joins) const;
   // A pending join as estimate() computed it on the side: its result and what it did to ids
   // (its own joins' JoinIds, then its merges; not its inputs'). Its inputs never change while
   // it is pending, and an input that completes meanwhile is bitwise the map computed on the
   // side, so the next estimate() takes it as it is while the join is still pending. That is
   // most of a call's cost on a revisit while a large join is spread over the steps.
+  // `event` reports it as complete() will report the real join, but step_finished is the step
+  // of the estimate() that computed it.
   struct MaterializedJoin {
     std::weak_ptr<const Node> node;
     TreeMap map;
     std::vector<JoinIds> settled;
+    JoinEvent event;
   };
   // complete()'s merge after a join that spans `leaves` local maps, on its result `decided`
   // (nothing when the join is larger than join_merge_max_leaves or keeps a version for the
@@ -391,6 +399,7 @@ class DCSlam : public SlamFilter {
   // the next predict() or update(), so that ids resolve to that estimate's landmarks.
   mutable IdAliases estimate_aliases_;
   mutable std::vector<JoinEvent> fold_joins_;  // of the last estimate()
+  mutable std::vector<JoinEvent> side_joins_;  // of the last estimate()
   // The pending joins estimate() computed on the side, until the first step after they
   // complete (begin_step()); front end only.
   mutable std::vector<MaterializedJoin> materialized_;
