@@ -444,7 +444,8 @@ TEST(DcSlam, WeakJoinsDecideAlikeInEveryMode) {
 // takes it as computed while the join is still pending (DCSlam::MaterializedJoin): called at
 // every step, amortized and threaded runs give bitwise the estimate and resolved ids of the
 // immediate run at that step, where no join is pending, with merges after small joins to
-// replay (join_merge_max_leaves) and weak joins' versions in the reused maps.
+// replay (join_merge_max_leaves) and weak joins' versions in the reused maps, some calls
+// computing a join after one they took as computed (side_joins() tells which).
 TEST(DcSlam, EstimateAtEveryStepReusesPendingJoinsExactly) {
   const Simulation sim = small_loop_laps();
   SlamConfig config;
@@ -456,6 +457,7 @@ TEST(DcSlam, EstimateAtEveryStepReusesPendingJoinsExactly) {
   for (Mode mode : {Mode::Immediate, Mode::Amortized, Mode::Threaded}) {
     DCSlam dc(in_mode(config, mode));
     std::size_t step = 0, calls = 0;
+    int reused_then_computed = 0;  // calls that computed a join after one they took as computed
     const std::vector<std::int64_t> returned = run_without_ids(dc, sim, [&] {
       if (++step % 3 != 0) return;  // every third step: a pending join lasts several
       const Estimate estimate = dc.estimate();
@@ -463,6 +465,12 @@ TEST(DcSlam, EstimateAtEveryStepReusesPendingJoinsExactly) {
         expected.push_back(estimate);
         return;
       }
+      int first_reused = -1, last_computed = -1;
+      for (const JoinEvent& event : dc.side_joins()) {
+        if (event.step_finished < static_cast<std::int64_t>(step) && first_reused < 0) first_reused = event.index;
+        if (event.step_finished == static_cast<std::int64_t>(step)) last_computed = event.index;
+      }
+      if (first_reused >= 0 && last_computed > first_reused) ++reused_then_computed;
       const Estimate& immediate = expected[calls++];
       ASSERT_EQ(estimate.landmark_ids, immediate.landmark_ids) << mode_name(mode) << ", step " << step;
       ASSERT_TRUE((estimate.robot.array() == immediate.robot.array()).all()) << mode_name(mode) << ", step " << step;
@@ -486,6 +494,7 @@ TEST(DcSlam, EstimateAtEveryStepReusesPendingJoinsExactly) {
     // worker thread may finish every join before the next call: no count to expect there.)
     if (mode == Mode::Threaded) continue;
     EXPECT_GT(counters.at("estimate_pending_joins_reused"), 0.0) << mode_name(mode);
+    EXPECT_GE(reused_then_computed, 3) << mode_name(mode);
     EXPECT_LT(counters.at("estimate_pending_joins_reused"), counters.at("estimate_pending_joins")) << mode_name(mode);
   }
 }
