@@ -459,8 +459,10 @@ class DCSlam(SlamFilter):
     def side_join_pairings(self) -> list:
         """What each pending join that the last :meth:`estimate` computed on the side saw and
         decided, as :meth:`join_pairings` does for the real joins, in the order of
-        ``stats.side_joins``; the real join, once it has run, records the same. Empty before the
-        first ``estimate()`` and when no join was pending."""
+        ``stats.side_joins``; the real join, once it has run, records the same (a weak join's
+        record then changes when a later join takes one of its versions, as in
+        :meth:`join_pairings`). Empty before the first ``estimate()`` and when no join was
+        pending."""
         return [_pairing_record(record) for record in self._core.side_join_pairings()]
 
     def set_join_oracle(self, feature_ids, landmark_ids, mode: str = "truth", min_first_features: int = 0,
