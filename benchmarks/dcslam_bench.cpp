@@ -74,6 +74,7 @@ Options of sim, scaling, vp and isam:
                        localises each closed local map against its oldest map  [none]
   --confirmed-first-confidence C|none  SlamConfig.confirmed_first_confidence: close to a
                        confirmed feature, tentative ones are not candidates  [0.9]
+  --rjc-p-fail F       SlamConfig.rjc_p_fail: RJC's chance of missing a good sample  [0.01]
   --seed S                                                          [0]
   --json FILE          write per-step times and totals as JSON
 
@@ -352,6 +353,7 @@ void apply_run_options(const Args& args, SlamConfig& config) {
       static_cast<int>(number(args, "local-map-features", config.local_map_features));
   config.join_iterations = static_cast<int>(number(args, "join-iterations", config.join_iterations));
   config.join_feature_sigma = real_number(args, "join-feature-sigma", config.join_feature_sigma);
+  config.rjc_p_fail = real_number(args, "rjc-p-fail", config.rjc_p_fail);
   config.tree_relinearisation = static_cast<int>(number(args, "tree-relinearisation", config.tree_relinearisation));
   config.weak_join_pairings = static_cast<int>(number(args, "weak-join-pairings", config.weak_join_pairings));
   config.join_merge_max_leaves =
@@ -767,7 +769,7 @@ void refuse_unknown_options(const std::string& command, const Args& args) {
                                         "join-feature-sigma", "keep-local-map-poses", "new-feature-beside-tentative",
                                         "tree-relinearisation", "weak-join-pairings", "join-merge-max-leaves",
                                         "chunked-jcbb-min-overlap", "join-rival-margin", "online-localisation-sigma",
-                                        "confirmed-first-confidence", "seed", "json"};
+                                        "confirmed-first-confidence", "rjc-p-fail", "seed", "json"};
   const std::vector<std::string> simulated = {"trajectory", "association", "clutter", "odometry-noise-scale",
                                               "gate", "unexplained-density", "new-feature-margin"};
   std::vector<std::string> known;

@@ -145,7 +145,10 @@ class SlamConfig:
             join" and "Large joins' doubtful pairs, decided by the next join").
         local_map_features: D&C closes a local map when it holds this many features.
         join_association: association at D&C joins: ``"rjc"``, ``"jcbb"`` or ``"known"``.
-        rjc_b, rjc_p_good, rjc_p_fail: RJC (Paz et al. 2007, Alg. 3) parameters.
+        rjc_b, rjc_p_good, rjc_p_fail: RJC (Paz et al. 2007, Alg. 3) parameters. At most
+            t = log(rjc_p_fail) / log(1 - rjc_p_good^rjc_b) tries: 14 at the defaults.
+            rjc_p_fail 0.001 (0.01 until 2026-12-06) by measurement on the revisit scenes
+            (docs/data_association.md, "D&C's map depends on RJC's draws").
         join_iterations: D&C: linearisation points of each join's constraint update (>= 1).
             The join re-linearises the move of the second map into the first's frame at the
             constrained estimate until it stops moving (an iterated EKF); 1 linearises once,
@@ -241,7 +244,7 @@ class SlamConfig:
     join_association: JoinAssociation = "rjc"
     rjc_b: int = 4
     rjc_p_good: float = 0.8
-    rjc_p_fail: float = 0.01
+    rjc_p_fail: float = 0.001
     join_iterations: int = 10
     join_feature_sigma: float = 0.01
     large_overlap_confidence: float = 0.999

@@ -36,8 +36,11 @@ TEST(Rjc, FindsTheTruePairingWhereNearestNeighbourFails) {
   EXPECT_EQ(result.pairings, 18);
   EXPECT_EQ(result.dropped, 0);
   EXPECT_GT(result.overlap_size, 18);  // spurious features and grid neighbours are in O
+  // At most the paper's t = log(p_fail) / log(1 - p_good^b) tries (Alg. 3; 14 at the defaults).
+  const RjcOptions defaults;
+  const double t = std::log(defaults.p_fail) / std::log(1.0 - std::pow(defaults.p_good, defaults.b));
   EXPECT_GE(result.tries, 5);
-  EXPECT_LE(result.tries, 9);
+  EXPECT_LE(result.tries, static_cast<int>(std::ceil(t)));
   EXPECT_NEAR(result.joint_distance_sq, joint_distance_sq(result.feature_of, problem.model), 1e-8);
 }
 
@@ -399,17 +402,23 @@ TEST(Rjc, WithRivalsResumedInSlicesGivesBitwiseTheSameResult) {
   EXPECT_EQ(compared, 3);
 }
 
+// The grid's layout shifted by one column is jointly compatible too (15 of the 18 pairings,
+// within the 1 m pose sigma), so some draws meet it as a rival; the others must be untouched.
 TEST(Rjc, WithoutRivalsTheMarginChangesNothing) {
-  for (std::uint64_t seed = 0; seed < 10; ++seed) {
+  int without_rivals = 0;
+  for (std::uint64_t seed = 0; seed < 20; ++seed) {
     const JoinProblem problem = grid_join(seed, 0, 6, 3, 9);
     RjcOptions options;
     options.seed = seed;
     const RjcResult plain = rjc(problem.candidates, problem.model, options);
     options.rival_margin = 3;
     const RjcResult with_margin = rjc(problem.candidates, problem.model, options);
-    EXPECT_EQ(with_margin.rivals, 0) << "seed " << seed;
+    if (with_margin.rivals > 0) continue;
+    ++without_rivals;
     EXPECT_EQ(with_margin.feature_of, plain.feature_of) << "seed " << seed;
+    EXPECT_EQ(with_margin.tries, plain.tries) << "seed " << seed;
   }
+  EXPECT_GE(without_rivals, 10);
 }
 
 TEST(Rjc, RejectsBadOptions) {

@@ -62,13 +62,23 @@ def test_dc_closes_the_parks_loops_like_the_ekf(victoria_park, whole_runs):
     assert min(agreement.first_in_second, agreement.second_in_first) > 0.9
 
 
-def test_maps_are_essentially_the_same(whole_runs):
-    # The paper's claim, within 1 m. With confirmed_first_confidence (0.9, the default since
-    # 2026-12-06) RJC seeds 0-7 give 0.92-0.97 (seed 0, the default, 0.958 / 0.963); without
-    # it 0.81-0.92, limited by the far landmarks, 150-250 m from the start, where the two maps
+def test_maps_are_essentially_the_same(victoria_park, whole_runs):
+    # The paper's claim, within 1 m, over RJC seeds 0-7: one seed is one draw of D&C's joins.
+    # With rjc_p_fail 0.001 (the default since 2026-12-06) the eight give 0.90-0.96, mean
+    # 0.93 (at 0.01: 0.92-0.97, mean 0.94), and every one of them is as close to GPS as the
+    # EKF's map (4.33-4.35 m against 4.32 m). Without confirmed_first_confidence they gave
+    # 0.81-0.92, limited by the far landmarks, 150-250 m from the start, where the two maps
     # differ by about their own standard deviation (docs/victoria_park.md).
-    agreement = map_agreement(whole_runs["dc"].estimate, whole_runs["ekf"].estimate, radius=1.0)
-    assert min(agreement.first_in_second, agreement.second_in_first) >= 0.95
+    ekf = whole_runs["ekf"].estimate
+    worst, total = 1.0, 0.0
+    for seed in range(8):
+        slam = dcslam.DCSlam(victoria_park.slam_config(seed=seed))
+        slam.run(victoria_park)
+        agreement = map_agreement(slam.estimate(), ekf, radius=1.0)
+        worst = min(worst, agreement.first_in_second, agreement.second_in_first)
+        total += min(agreement.first_in_second, agreement.second_in_first)
+    assert total / 8 >= 0.92
+    assert worst >= 0.88
 
 
 def test_map_agreement_is_measured_in_one_frame(runs):

@@ -20,10 +20,11 @@ from dc_runs import pickled, run_dc
 # The runs traced in docs/data_association.md, made with JCBB's pairing count in the local maps
 # (unexplained_density 0, the default until 2026-12-05), the gate of then (0.99), rejections
 # beside tentative features and tentative features offered beside confirmed ones (until
-# 2026-12-06): draws of a lottery that any change in a local map's pairings redraws.
+# 2026-12-06) and RJC's tries of then (rjc_p_fail 0.01, until 2026-12-06): draws of a
+# lottery that any change in a local map's pairings or in RJC's tries redraws.
 BASE = dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=0, unexplained_density=0.0,
                          gate_confidence=0.99, new_feature_beside_tentative=False,
-                         confirmed_first_confidence=None)
+                         confirmed_first_confidence=None, rjc_p_fail=0.01)
 
 
 @pytest.fixture(scope="module")

@@ -25,7 +25,7 @@ namespace dcslam {
 struct RjcOptions {
   int b = 4;             // measurements drawn per try and paired by JCBB*
   double p_good = 0.8;   // prior probability that an overlap measurement has a true pairing
-  double p_fail = 0.01;  // accepted probability of never drawing an all-good sample
+  double p_fail = 0.001;  // accepted probability of never drawing an all-good sample
   double confidence = 0.99;  // of every gate and joint test RJC makes
   std::uint64_t seed = 0;
   int max_tries = 100;  // cap on t

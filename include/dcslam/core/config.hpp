@@ -116,7 +116,7 @@ struct SlamConfig {
   JoinAssociation join_association = JoinAssociation::Rjc;
   int rjc_b = 4;
   double rjc_p_good = 0.8;
-  double rjc_p_fail = 0.01;
+  double rjc_p_fail = 0.001;
   // D&C: linearisation points of each join's constraint update (iterated EKF; 1 = the
   // one-shot join linearised at the prior means).
   int join_iterations = 10;
