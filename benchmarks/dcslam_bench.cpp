@@ -74,7 +74,7 @@ Options of sim, scaling, vp and isam:
                        localises each closed local map against its oldest map  [none]
   --confirmed-first-confidence C|none  SlamConfig.confirmed_first_confidence: close to a
                        confirmed feature, tentative ones are not candidates  [0.9]
-  --rjc-p-fail F       SlamConfig.rjc_p_fail: RJC's chance of missing a good sample  [0.01]
+  --rjc-p-fail F       SlamConfig.rjc_p_fail: RJC's chance of missing a good sample  [0.001]
   --seed S                                                          [0]
   --json FILE          write per-step times and totals as JSON
 
