@@ -10,6 +10,7 @@
 #include "dcslam/association/jcbb.hpp"
 #include "dcslam/joining/join_alternatives.hpp"
 #include "dcslam/joining/join_association.hpp"
+#include "dcslam/joining/join_options.hpp"
 #include "dcslam/joining/map_joining.hpp"
 #include "print_parameters.hpp"
 
@@ -701,6 +702,22 @@ TEST(JoinAssociation, AJoinThatPairsLittleOfItsOverlapSearchesAgainAtAWiderGate)
   EXPECT_FALSE(within.widened);
   EXPECT_EQ(within.pairs.size(), 60u);
   EXPECT_EQ(count_wrong(within.pairs, small_drift.first, small_drift.second), 0);
+}
+
+// The settings a DCSlam hands its joins are written twice: SlamConfig's (core, which cannot see
+// the association's headers) and the defaults of RjcOptions and JoinOptions, which a benchmark
+// or test of joins alone starts from. A default changed on one side only would make such a
+// benchmark measure another configuration than a run's.
+TEST(JoinAssociation, TheJoinsOfADefaultConfigKeepTheJoinDefaults) {
+  const JoinOptions of_config = join_options_of(SlamConfig{});
+  const RjcOptions rjc_defaults;
+  const JoinOptions join_defaults;
+  EXPECT_EQ(of_config.rjc.b, rjc_defaults.b);
+  EXPECT_EQ(of_config.rjc.p_good, rjc_defaults.p_good);
+  EXPECT_EQ(of_config.rjc.p_fail, rjc_defaults.p_fail);
+  EXPECT_EQ(of_config.large_overlap_confidence, join_defaults.large_overlap_confidence);
+  EXPECT_EQ(of_config.chunked_jcbb_min_overlap, join_defaults.chunked_jcbb_min_overlap);
+  EXPECT_EQ(of_config.max_iterations, join_defaults.max_iterations);
 }
 }  // namespace
 }  // namespace dcslam
