@@ -83,13 +83,16 @@ void ConditionedPairingModel::condition(const Pairing& pairing, Vec2& innovation
   covariance = base_.covariance(pairing, pairing) - cross_kept.transpose() * cross_kept;
 }
 
+void ConditionedPairingModel::reserve_factor(Eigen::Index rows) {
+  if (lower_.rows() >= rows) return;
+  const Eigen::Index size = std::max<Eigen::Index>(rows, 2 * lower_.rows());
+  lower_.conservativeResize(size, size);
+  whitened_.conservativeResize(size);
+}
+
 void ConditionedPairingModel::keep(const Pairing& pairing, const Eigen::LLT<Mat2>& factor, const Vec2& innovation) {
   const auto m = static_cast<Eigen::Index>(kept_.size());
-  if (lower_.rows() < 2 * m + 2) {
-    const Eigen::Index size = std::max<Eigen::Index>(2 * m + 2, 4 * m);
-    lower_.conservativeResize(size, size);
-    whitened_.conservativeResize(size);
-  }
+  reserve_factor(2 * m + 2);
   lower_.block(2 * m, 0, 2, 2 * m) = cross_.topRows(2 * m).transpose();
   lower_.block<2, 2>(2 * m, 2 * m) = factor.matrixL();
   whitened_.segment<2>(2 * m) = factor.matrixL().solve(innovation);
@@ -105,6 +108,72 @@ bool ConditionedPairingModel::keep_if_within(const Pairing& pairing, double gate
   if (factor.info() != Eigen::Success || factor.matrixL().solve(innovation).squaredNorm() > gate) return false;
   keep(pairing, factor, innovation);
   return true;
+}
+
+// The panel's pairings conditioned on K are a PairingModel of their own (nu_a|K, C_ab|K from
+// the panel's w_a), in which the sequential test runs as above; the rows it adds to L are
+// [w_a' | the panel factor's row], those keep() would have added one by one.
+std::size_t ConditionedPairingModel::keep_each_within(const std::vector<Pairing>& pairings,
+                                                      const std::vector<double>& gates, int max_rejections,
+                                                      std::vector<char>& kept) {
+  const auto m = static_cast<Eigen::Index>(kept_.size());
+  const auto count = static_cast<Eigen::Index>(pairings.size());
+  kept.clear();
+  panel_cross_.resize(2 * m, 2 * count);
+  for (Eigen::Index p = 0; p < count; ++p) {
+    write_cross(pairings[static_cast<std::size_t>(p)], panel_cross_.middleCols<2>(2 * p));
+  }
+  if (m > 0) lower_.topLeftCorner(2 * m, 2 * m).triangularView<Eigen::Lower>().solveInPlace(panel_cross_);
+  // Every w_a' w_b and w_a' L^-1 nu_K of the panel in two products, not a small one per pair.
+  panel_gram_.noalias() = panel_cross_.transpose() * panel_cross_;
+  panel_shift_.noalias() = panel_cross_.transpose() * whitened_.head(2 * m);
+
+  Eigen::MatrixXd panel_lower(2 * count, 2 * count);  // the factor of the taken ones given K
+  Eigen::VectorXd panel_whitened(2 * count);
+  CrossBlock panel_cross(2 * count, 2);
+  std::vector<Eigen::Index> taken;
+  int rejections = 0;
+  for (Eigen::Index p = 0; p < count && rejections < max_rejections; ++p) {
+    const Pairing& pairing = pairings[static_cast<std::size_t>(p)];
+    kept.push_back(0);
+    Vec2 innovation = base_.innovation(pairing) - panel_shift_.segment<2>(2 * p);
+    Mat2 covariance = base_.covariance(pairing, pairing) - panel_gram_.block<2, 2>(2 * p, 2 * p);
+    const auto t = static_cast<Eigen::Index>(taken.size());
+    if (t > 0) {
+      for (Eigen::Index r = 0; r < t; ++r) {
+        const Eigen::Index q = taken[static_cast<std::size_t>(r)];
+        panel_cross.middleRows<2>(2 * r) =
+            base_.covariance(pairings[static_cast<std::size_t>(q)], pairing) - panel_gram_.block<2, 2>(2 * q, 2 * p);
+      }
+      auto cross_taken = panel_cross.topRows(2 * t);
+      panel_lower.topLeftCorner(2 * t, 2 * t).triangularView<Eigen::Lower>().solveInPlace(cross_taken);
+      innovation -= cross_taken.transpose().lazyProduct(panel_whitened.head(2 * t));
+      covariance -= cross_taken.transpose().lazyProduct(cross_taken);
+    }
+    const Eigen::LLT<Mat2> factor(covariance);
+    const Vec2 whitened = factor.matrixL().solve(innovation);
+    if (factor.info() != Eigen::Success || whitened.squaredNorm() > gates[static_cast<std::size_t>(p)]) {
+      ++rejections;
+      continue;
+    }
+    panel_lower.block(2 * t, 0, 2, 2 * t) = panel_cross.topRows(2 * t).transpose();
+    panel_lower.block<2, 2>(2 * t, 2 * t) = factor.matrixL();
+    panel_whitened.segment<2>(2 * t) = whitened;
+    taken.push_back(p);
+    kept.back() = 1;
+  }
+  if (taken.empty()) return kept.size();
+  const auto t = static_cast<Eigen::Index>(taken.size());
+  reserve_factor(2 * (m + t));
+  for (Eigen::Index r = 0; r < t; ++r) {
+    const Eigen::Index q = taken[static_cast<std::size_t>(r)];
+    lower_.block(2 * (m + r), 0, 2, 2 * m) = panel_cross_.middleCols<2>(2 * q).transpose();
+    lower_.block(2 * (m + r), 2 * m, 2, 2 * (r + 1)) = panel_lower.block(2 * r, 0, 2, 2 * (r + 1));
+    kept_.push_back(pairings[static_cast<std::size_t>(q)]);
+  }
+  whitened_.segment(2 * m, 2 * t) = panel_whitened.head(2 * t);
+  cache_.clear();
+  return kept.size();
 }
 
 double ConditionedPairingModel::conditional_distance_sq(const Pairing& pairing) {

@@ -95,25 +95,45 @@ int accept_sequentially(const std::vector<Pairing>& order, int seed_size,
 // factor of S_K grown a block at a time (ConditionedPairingModel).
 SequentialAcceptance::SequentialAcceptance(const std::vector<Pairing>& order, int seed_size,
                                            std::vector<int>& feature_of,
-                                           const PairingModel& model, double gate)
+                                           const PairingModel& model, double gate, std::int64_t work_unit)
     : order_(order),
       seed_size_(seed_size),
       feature_of_(feature_of),
       gate_(gate),
+      work_unit_(work_unit),
       conditioned_(model, static_cast<Eigen::Index>(order.size())) {}
 
 std::int64_t SequentialAcceptance::step_work(std::int64_t kept) {
   return ConditionedPairingModel::condition_work(kept);
 }
 
+// A step counts what testing its pairings one at a time would, so that an amortized join's
+// schedule does not depend on the panels.
 std::int64_t SequentialAcceptance::step(std::int64_t) {
-  const Pairing& pairing = order_[static_cast<std::size_t>(next_)];
-  const bool seed = next_ < seed_size_;
-  ++next_;
-  const std::int64_t work = step_work(conditioned_.kept());
-  if (!conditioned_.keep_if_within(pairing, seed ? std::numeric_limits<double>::infinity() : gate_)) {
-    feature_of_[pairing.measurement] = kStar;
-    ++removed_;
+  const std::int64_t kept = conditioned_.kept();
+  const auto left = static_cast<Eigen::Index>(order_.size()) - next_;
+  Eigen::Index count = 0;
+  for (std::int64_t bound = 0; count < std::min(left, kMaxPanelPairings); ++count) {
+    bound += step_work(kept + count);
+    if (count >= kMinPanelPairings && bound > work_units(work_unit_)) break;
+  }
+  panel_.assign(order_.begin() + next_, order_.begin() + next_ + count);
+  panel_gates_.resize(static_cast<std::size_t>(count));
+  for (Eigen::Index p = 0; p < count; ++p) {
+    panel_gates_[static_cast<std::size_t>(p)] = next_ + p < seed_size_ ? std::numeric_limits<double>::infinity() : gate_;
+  }
+  const std::size_t tested = conditioned_.keep_each_within(panel_, panel_gates_, std::max(1, removal_limit_ - removed_), panel_kept_);
+  next_ += static_cast<Eigen::Index>(tested);
+  std::int64_t work = 0;
+  std::int64_t kept_before = kept;
+  for (std::size_t p = 0; p < tested; ++p) {
+    work += step_work(kept_before);
+    if (panel_kept_[p]) {
+      ++kept_before;
+    } else {
+      feature_of_[panel_[p].measurement] = kStar;
+      ++removed_;
+    }
   }
   return work;
 }
@@ -512,6 +532,10 @@ std::int64_t RjcSearch::complete_try() {
     // the best one unverified is not verified at all.
     if (!try_verification_) try_verification_ = std::make_unique<TryVerification>();
     begin_verification(*try_verification_, order_, feature_of_);
+    // A panel stops where a pairing at a time would end the try (VerifyTry).
+    int removal_limit = 1;
+    while (removal_limit <= pairings && worth_verifying(pairings - removal_limit)) ++removal_limit;
+    try_verification_->acceptance->stop_after_removals(removal_limit);
     stage_ = Stage::VerifyTry;
   } else {
     end_of_try();
@@ -523,7 +547,8 @@ void RjcSearch::begin_verification(TryVerification& verification, const std::vec
                                    const std::vector<int>& feature_of) const {
   verification.order = order;
   verification.feature_of = feature_of;
-  verification.acceptance.emplace(verification.order, options_.b, verification.feature_of, model_, gate_);
+  verification.acceptance.emplace(verification.order, options_.b, verification.feature_of, model_, gate_,
+                                  options_.work_unit);
 }
 
 bool RjcSearch::can_beat_best(int pairings) const {

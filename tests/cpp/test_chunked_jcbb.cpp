@@ -1,6 +1,7 @@
 // Chunked JCBB (chunked_jcbb.hpp) and the model it conditions (conditioned_model.hpp), against
 // oracles computed densely: the Schur complement of the stacked hypothesis, the chain rule of
 // the joint distance, plain JCBB on one chunk, and the truth of the grid join.
+#include <algorithm>
 #include <limits>
 #include <vector>
 
@@ -110,6 +111,63 @@ TEST(ConditionedPairingModel, PreparedPairingsAreConditionedAsOneByOne) {
     }
     EXPECT_NEAR(individual_distance_sq(prepared, a), individual_distance_sq(one_by_one, a), 1e-10);
   }
+}
+
+// keep_each_within() decides as keep_if_within() one by one and leaves the same factor: panels
+// with nothing kept yet and with many kept, seeds (an infinite gate), wrong pairings first,
+// inside and last in a panel, and a panel of which nothing is kept.
+TEST(ConditionedPairingModel, KeepEachWithinIsKeepIfWithinOneByOne) {
+  const JoinProblem problem = grid_join(11, 0, 10, 0, 10);
+  std::vector<Pairing> order = true_pairings(problem);
+  ASSERT_GE(order.size(), 60u);
+  const int spurious = static_cast<int>(problem.truth.size()) - 1;
+  std::vector<double> gates(order.size(), chi2_quantile(2, 0.99));
+  std::fill(gates.begin(), gates.begin() + 3, std::numeric_limits<double>::infinity());
+  for (std::size_t at : {9u, 16u, 31u, 40u, 41u, 42u, 52u}) {
+    order[at].feature = (order[at].feature + 7) % (problem.model.first_size - 2);  // a wrong feature
+  }
+  order.insert(order.begin() + 12, Pairing{spurious, 5 * 6 + 0});
+  gates.insert(gates.begin() + 12, chi2_quantile(2, 0.99));
+  const std::vector<std::size_t> panel_ends{3, 9, 10, 17, 40, 43, 53, order.size()};
+
+  ConditionedPairingModel one_by_one(problem.model);
+  std::vector<char> expected(order.size());
+  for (std::size_t a = 0; a < order.size(); ++a) expected[a] = one_by_one.keep_if_within(order[a], gates[a]);
+  ConditionedPairingModel in_panels(problem.model);
+  std::vector<char> decided;
+  std::size_t begin = 0;
+  int rejected_panels = 0;
+  for (std::size_t end : panel_ends) {
+    const std::vector<Pairing> panel(order.begin() + begin, order.begin() + end);
+    const std::vector<double> panel_gates(gates.begin() + begin, gates.begin() + end);
+    std::vector<char> kept;
+    ASSERT_EQ(in_panels.keep_each_within(panel, panel_gates, std::numeric_limits<int>::max(), kept), panel.size());
+    ASSERT_EQ(kept.size(), panel.size());
+    rejected_panels += std::count(kept.begin(), kept.end(), 0) > 0;
+    decided.insert(decided.end(), kept.begin(), kept.end());
+    begin = end;
+  }
+  EXPECT_EQ(decided, expected);
+  EXPECT_GE(std::count(expected.begin(), expected.end(), 0), 6);
+  EXPECT_GE(rejected_panels, 4);
+  ASSERT_EQ(in_panels.kept(), one_by_one.kept());
+  EXPECT_NEAR(in_panels.joint_distance_sq(), one_by_one.joint_distance_sq(), 1e-9 * one_by_one.joint_distance_sq());
+  // The factor both left: every rejected pairing's distance conditioned on all kept ones.
+  for (std::size_t a = 0; a < order.size(); ++a) {
+    if (expected[a]) continue;
+    const double distance = one_by_one.conditional_distance_sq(order[a]);
+    EXPECT_NEAR(in_panels.conditional_distance_sq(order[a]), distance, 1e-9 * (1.0 + distance));
+  }
+  // Told to stop at the second refusal, a panel tests up to that one and keeps what it kept
+  // before it.
+  ConditionedPairingModel stopped(problem.model);
+  std::vector<char> kept;
+  const std::size_t tested = stopped.keep_each_within(order, gates, 2, kept);
+  std::size_t second_refusal = 0;
+  for (int refusals = 0; refusals < 2; ++second_refusal) refusals += expected[second_refusal] == 0;
+  ASSERT_EQ(tested, second_refusal);
+  EXPECT_EQ(kept, std::vector<char>(expected.begin(), expected.begin() + static_cast<std::ptrdiff_t>(tested)));
+  EXPECT_EQ(stopped.kept(), std::count(kept.begin(), kept.end(), 1));
 }
 
 ChunkedJcbbResult run_chunked(const JoinProblem& problem, const ChunkedJcbbOptions& options) {

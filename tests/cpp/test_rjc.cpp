@@ -208,6 +208,66 @@ TEST(Rjc, SequentialAcceptanceKeepsThePairingsCompatibleWithAllEarlierOnes) {
   EXPECT_EQ(feature_of[shifted.measurement], kStar);
 }
 
+// How many pairings a step tests at once depends on the work unit, the decisions do not: panels
+// of four (a unit below any pairing's work) and of 32 (a unit above all of them) both decide
+// as accept_sequentially(), with wrong pairings among the true ones.
+TEST(Rjc, SequentialAcceptanceDecidesAlikeInPanelsOfAnySize) {
+  const JoinProblem problem = grid_join(12, 0, 10, 0, 10);
+  std::vector<Pairing> order;
+  for (std::size_t j = 0; j < problem.truth.size(); ++j) {
+    if (problem.truth[j] != kStar) order.push_back(Pairing{static_cast<int>(j), problem.truth[j]});
+  }
+  for (std::size_t at : {7u, 8u, 21u, 35u, 50u}) order[at].feature = (order[at].feature + 7) % (problem.model.first_size - 2);
+  std::vector<int> feature_of(problem.truth.size(), kStar);
+  for (const Pairing& pairing : order) feature_of[pairing.measurement] = pairing.feature;
+  const double gate = chi2_quantile(2, 0.99);
+  std::vector<int> expected = feature_of;
+  const int expected_removed = accept_sequentially(order, 4, expected, problem.model, gate);
+  EXPECT_GE(expected_removed, 4);
+  std::vector<std::int64_t> steps;
+  for (std::int64_t work_unit : {std::int64_t{8}, std::int64_t{1} << 40}) {
+    std::vector<int> decided = feature_of;
+    SequentialAcceptance acceptance(order, 4, decided, problem.model, gate, work_unit);
+    std::int64_t work = 0;
+    steps.push_back(0);
+    while (!acceptance.done()) {
+      work += acceptance.step(1);
+      ++steps.back();
+    }
+    EXPECT_EQ(decided, expected);
+    EXPECT_EQ(acceptance.removed(), expected_removed);
+    EXPECT_NEAR(acceptance.joint_distance_sq(), joint_distance_sq(expected, problem.model),
+                1e-9 * joint_distance_sq(expected, problem.model));
+    std::int64_t one_by_one = 0;  // the work counted is what one pairing a step would count
+    int kept = 0;
+    for (const Pairing& pairing : order) {
+      one_by_one += SequentialAcceptance::step_work(kept);
+      kept += expected[pairing.measurement] == pairing.feature;
+    }
+    EXPECT_EQ(work, one_by_one);
+  }
+  // Told to stop at the second removal, a panel of 32 ends where a pairing at a time would
+  // have been stopped: right after that pairing (a wrong one follows within the panel).
+  std::vector<int> stopped = feature_of;
+  SequentialAcceptance acceptance(order, 4, stopped, problem.model, gate, std::int64_t{1} << 40);
+  acceptance.stop_after_removals(2);
+  acceptance.step(1);
+  EXPECT_EQ(acceptance.removed(), 2);
+  EXPECT_FALSE(acceptance.done());
+  std::size_t second_removal = 0;
+  for (int removals = 0; removals < 2; ++second_removal) removals += expected[order[second_removal].measurement] == kStar;
+  std::size_t third_removal = second_removal;
+  while (expected[order[third_removal].measurement] != kStar) ++third_removal;
+  ASSERT_LT(third_removal, static_cast<std::size_t>(SequentialAcceptance::kMaxPanelPairings));
+  for (std::size_t a = 0; a < order.size(); ++a) {
+    const int measurement = order[a].measurement;
+    EXPECT_EQ(stopped[measurement], a < second_removal ? expected[measurement] : feature_of[measurement]);
+  }
+  const auto pairings = static_cast<std::int64_t>(order.size());
+  EXPECT_EQ(steps[0], (pairings + SequentialAcceptance::kMinPanelPairings - 1) / SequentialAcceptance::kMinPanelPairings);
+  EXPECT_EQ(steps[1], (pairings + SequentialAcceptance::kMaxPanelPairings - 1) / SequentialAcceptance::kMaxPanelPairings);
+}
+
 // The completion's two primitives against the chain rule: a's distance conditioned on all
 // the kept pairings is D^2(K + a) - D^2(K); append() keeps a pairing only if it passes the gate.
 TEST(Rjc, CompletionTestsAPairingAgainstAllKeptOnes) {

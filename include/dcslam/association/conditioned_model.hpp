@@ -5,7 +5,8 @@
 //   nu_a|K  = nu_a  - C_aK S_K^-1 nu_K  = nu_a  - w_a' (L^-1 nu_K),
 //   C_ab|K  = C_ab  - C_aK S_K^-1 C_Kb  = C_ab  - w_a' w_b,        w_a = L^-1 C_Ka,
 // and the joint D^2 of K is the sum of each kept pairing's distance conditioned on those
-// kept before it. The factor L grows by one 2-row block per kept pairing, O(|K|^2).
+// kept before it. The factor L grows by one 2-row block per kept pairing, O(|K|^2), whether
+// kept one at a time (keep_if_within()) or a panel at a time (keep_each_within()).
 #include <cstdint>
 #include <unordered_map>
 #include <vector>
@@ -33,6 +34,14 @@ class ConditionedPairingModel : public PairingModel {
   // conditioned on K is at most `gate` (infinity: positive definite is enough); false and K
   // unchanged otherwise. O(|K|^2), computed afresh (not from the cache).
   bool keep_if_within(const Pairing& pairing, double gate);
+  // keep_if_within() on each of `pairings` in turn, with gates[i] for pairings[i], until
+  // `max_rejections` were refused; returns how many it tested, kept[i] saying whether
+  // pairings[i] was kept. The same test, up to rounding, but with one triangular solve of L
+  // for all of them (w_a for the panel at once, then the panel's pairings conditioned on each
+  // other through a factor of at most 2 |pairings| rows): a pairing conditioned on many reads
+  // L once for the panel, not once a pairing, which is what the solve is bound by.
+  std::size_t keep_each_within(const std::vector<Pairing>& pairings, const std::vector<double>& gates,
+                               int max_rejections, std::vector<char>& kept);
   // D^2 of `pairing` conditioned on K (infinity if C_aa|K is not positive definite).
   double conditional_distance_sq(const Pairing& pairing);
 
@@ -58,6 +67,8 @@ class ConditionedPairingModel : public PairingModel {
   // Adds the pairing last passed to condition() to K, given the factor of its conditional
   // covariance and its conditional innovation.
   void keep(const Pairing& pairing, const Eigen::LLT<Mat2>& factor, const Vec2& innovation);
+  // Grows L's and L^-1 nu_K's storage to at least `rows` rows, keeping their contents.
+  void reserve_factor(Eigen::Index rows);
   // Writes L^-1 C_Ka into `cross` (2|K| x 2).
   void solve_cross(const Pairing& pairing, CrossBlock& cross) const;
   const CrossBlock& cached_cross(const Pairing& pairing) const;
@@ -66,6 +77,9 @@ class ConditionedPairingModel : public PairingModel {
   Eigen::MatrixXd lower_;  // L, grown a block at a time; only its lower triangle is read
   Eigen::VectorXd whitened_;  // L^-1 nu_K
   CrossBlock cross_;  // condition()'s w_a, for keep()
+  Eigen::MatrixXd panel_cross_;  // keep_each_within()'s w_a, a pair of columns per pairing,
+  Eigen::MatrixXd panel_gram_;   // their w_a' w_b
+  Eigen::VectorXd panel_shift_;  // and their w_a' L^-1 nu_K
   std::vector<Pairing> kept_;
   mutable std::unordered_map<std::uint64_t, CrossBlock> cache_;
 };

@@ -4,6 +4,7 @@
 // same PairingModel as JCBB (measurement = feature of the second map, feature = feature of
 // the first).
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <random>
@@ -148,12 +149,20 @@ int accept_sequentially(const std::vector<Pairing>& order, int seed_size,
 int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel& model,
                                 double confidence, double* joint_distance_sq = nullptr);
 
-// accept_sequentially() as resumable work (ResumableWork): a step tests one pairing (O(k^2)).
+// accept_sequentially() as resumable work (ResumableWork): a step tests a panel of pairings
+// (ConditionedPairingModel::keep_each_within(), O(k^2) each), as many as keep the step's work
+// within `work_unit` multiply-adds, at least kMinPanelPairings and at most kMaxPanelPairings:
+// the panel depends on the pairings kept so far and the unit alone, never on the budget.
 // The referenced arguments must outlive it.
 class SequentialAcceptance : public ResumableWork<SequentialAcceptance> {
  public:
+  // At 300 kept pairings a work unit holds two pairings; four still keep a step near 0.1 ms.
+  static constexpr Eigen::Index kMinPanelPairings = 4;
+  static constexpr Eigen::Index kMaxPanelPairings = kDefaultPanelWidth / 2;
+
   SequentialAcceptance(const std::vector<Pairing>& order, int seed_size,
-                       std::vector<int>& feature_of, const PairingModel& model, double gate);
+                       std::vector<int>& feature_of, const PairingModel& model, double gate,
+                       std::int64_t work_unit = kDefaultWorkUnit);
   std::int64_t step(std::int64_t budget);
   bool done() const { return next_ == static_cast<Eigen::Index>(order_.size()); }
   std::int64_t remaining_work() const;
@@ -162,6 +171,9 @@ class SequentialAcceptance : public ResumableWork<SequentialAcceptance> {
   static std::int64_t step_work(std::int64_t kept);
   static std::int64_t work_left(std::int64_t kept, std::int64_t left);
   int removed() const { return removed_; }
+  // Tests no pairing after the one whose refusal makes `removals` (one that a caller ends the
+  // verification at: a step's panel would otherwise test past it).
+  void stop_after_removals(int removals) { removal_limit_ = removals; }
   // D^2 of the pairings kept so far, in the order kept: the sum of their distances each
   // conditioned on those before it (the chain rule), so no joint factor is needed for it.
   double joint_distance_sq() const;
@@ -177,9 +189,14 @@ class SequentialAcceptance : public ResumableWork<SequentialAcceptance> {
   int seed_size_;
   std::vector<int>& feature_of_;
   double gate_;
+  std::int64_t work_unit_;
   ConditionedPairingModel conditioned_;  // on the pairings kept so far
   Eigen::Index next_ = 0;
   int removed_ = 0;
+  int removal_limit_ = std::numeric_limits<int>::max();
+  std::vector<Pairing> panel_;  // the step's pairings, their gates and whether each was kept
+  std::vector<double> panel_gates_;
+  std::vector<char> panel_kept_;
 };
 
 // enforce_joint_compatibility() as resumable work (ResumableWork): S's blocks a pairing at a
