@@ -87,16 +87,33 @@ std::int64_t ChunkedJcbb::step(std::int64_t) {
   return 0;
 }
 
+// A measurement's candidates are solved (w_a) with those of the measurements after it that the
+// chunk will gate before it can close, as many as one panel holds: the factor is read once for
+// them all, and they stay cached until the chunk's pairings are kept.
 std::int64_t ChunkedJcbb::gate_next() {
+  const auto open_pairings = [&](std::size_t measurement, std::vector<Pairing>& open) {
+    for (int feature : candidates_[measurement]) {
+      if (!feature_used_[static_cast<std::size_t>(feature)]) open.push_back(Pairing{static_cast<int>(measurement), feature});
+    }
+  };
   const int measurement = static_cast<int>(next_);
   const std::vector<int>& list = candidates_[next_++];
   candidates_left_ -= static_cast<std::int64_t>(list.size());
   overlap_left_ -= list.empty() ? 0 : 1;
   std::vector<Pairing> open;
-  for (int feature : list) {
-    if (!feature_used_[static_cast<std::size_t>(feature)]) open.push_back(Pairing{measurement, feature});
+  open_pairings(static_cast<std::size_t>(measurement), open);
+  std::size_t solved = 0;
+  if (!open.empty() && !conditioned_.prepared(open.front())) {
+    const Eigen::Index panel = ConditionedPairingModel::panel_pairings(
+        conditioned_.kept(), ConditionedPairingModel::kMaxPanelPairings, options_.work_unit);
+    panel_ = open;
+    const std::size_t gated_before_close = static_cast<std::size_t>(options_.chunk_size) - chunk_.size();
+    const std::size_t end = std::min(candidates_.size(), static_cast<std::size_t>(measurement) + gated_before_close);
+    for (std::size_t later = next_; later < end && static_cast<Eigen::Index>(panel_.size()) < panel; ++later) {
+      open_pairings(later, panel_);
+    }
+    solved = conditioned_.prepare(panel_);
   }
-  conditioned_.prepare(open);
   std::vector<int> gated;
   for (const Pairing& pairing : open) {
     if (individual_distance_sq(conditioned_, pairing) <= options_.candidate_gate) {
@@ -111,7 +128,8 @@ std::int64_t ChunkedJcbb::gate_next() {
   if (static_cast<int>(chunk_.size()) == options_.chunk_size || last) {
     stage_ = !chunk_.empty() ? Stage::Start : Stage::Done;
   }
-  return 1 + static_cast<std::int64_t>(list.size()) * ConditionedPairingModel::condition_work(conditioned_.kept());
+  return 1 + static_cast<std::int64_t>(solved) * ConditionedPairingModel::condition_work(conditioned_.kept()) +
+         static_cast<std::int64_t>(list.size()) * kPairingCovarianceUnits;
 }
 
 std::int64_t ChunkedJcbb::start_chunk() {
@@ -143,16 +161,26 @@ std::int64_t ChunkedJcbb::search_chunk() {
   return work;
 }
 
-// A pairing of the chunk joins the conditioning set (its conditional covariance is positive
-// definite in exact arithmetic, the chunk's JCBB having factored it; one that is not in
-// floating point is left unpaired).
+// The chunk's pairings join the conditioning set a panel at a time (each conditional covariance
+// is positive definite in exact arithmetic, the chunk's JCBB having factored it; one that is
+// not in floating point is left unpaired).
 std::int64_t ChunkedJcbb::keep_next() {
-  const std::int64_t work = ConditionedPairingModel::condition_work(conditioned_.kept());
+  std::int64_t work = 1;
   if (next_kept_ < accepted_.size()) {
-    const Pairing pairing = accepted_[next_kept_++];
-    if (conditioned_.keep_if_within(pairing, std::numeric_limits<double>::infinity())) {
-      feature_used_[static_cast<std::size_t>(pairing.feature)] = 1;
-      result_.feature_of[static_cast<std::size_t>(pairing.measurement)] = pairing.feature;
+    std::int64_t kept = conditioned_.kept();
+    const Eigen::Index count = ConditionedPairingModel::panel_pairings(
+        kept, static_cast<Eigen::Index>(accepted_.size() - next_kept_), options_.work_unit);
+    panel_.assign(accepted_.begin() + static_cast<std::ptrdiff_t>(next_kept_),
+                  accepted_.begin() + static_cast<std::ptrdiff_t>(next_kept_) + count);
+    panel_gates_.assign(panel_.size(), std::numeric_limits<double>::infinity());
+    conditioned_.keep_each_within(panel_, panel_gates_, std::numeric_limits<int>::max(), panel_kept_);
+    next_kept_ += panel_.size();
+    for (std::size_t p = 0; p < panel_.size(); ++p) {
+      work += ConditionedPairingModel::condition_work(kept);
+      if (!panel_kept_[p]) continue;
+      ++kept;
+      feature_used_[static_cast<std::size_t>(panel_[p].feature)] = 1;
+      result_.feature_of[static_cast<std::size_t>(panel_[p].measurement)] = panel_[p].feature;
       ++result_.pairings;
     }
   }

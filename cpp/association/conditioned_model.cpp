@@ -44,14 +44,14 @@ const ConditionedPairingModel::CrossBlock& ConditionedPairingModel::cached_cross
   return cache_.emplace(key_of(pairing), std::move(cross)).first->second;
 }
 
-void ConditionedPairingModel::prepare(const std::vector<Pairing>& pairings) const {
+std::size_t ConditionedPairingModel::prepare(const std::vector<Pairing>& pairings) const {
   const auto m = static_cast<Eigen::Index>(kept_.size());
-  if (m == 0) return;
+  if (m == 0) return 0;
   std::vector<Pairing> missing;
   for (const Pairing& pairing : pairings) {
     if (cache_.count(key_of(pairing)) == 0) missing.push_back(pairing);
   }
-  if (missing.empty()) return;
+  if (missing.empty()) return 0;
   Eigen::MatrixXd cross(2 * m, 2 * static_cast<Eigen::Index>(missing.size()));
   for (std::size_t p = 0; p < missing.size(); ++p) {
     write_cross(missing[p], cross.middleCols<2>(2 * static_cast<Eigen::Index>(p)));
@@ -60,6 +60,20 @@ void ConditionedPairingModel::prepare(const std::vector<Pairing>& pairings) cons
   for (std::size_t p = 0; p < missing.size(); ++p) {
     cache_.emplace(key_of(missing[p]), CrossBlock(cross.middleCols<2>(2 * static_cast<Eigen::Index>(p))));
   }
+  return missing.size();
+}
+
+bool ConditionedPairingModel::prepared(const Pairing& pairing) const {
+  return kept_.empty() || cache_.count(key_of(pairing)) > 0;
+}
+
+Eigen::Index ConditionedPairingModel::panel_pairings(std::int64_t kept, Eigen::Index left, std::int64_t work_unit) {
+  Eigen::Index count = 0;
+  for (std::int64_t work = 0; count < std::min(left, kMaxPanelPairings); ++count) {
+    work += condition_work(kept + count);
+    if (count >= kMinPanelPairings && work > work_unit) break;
+  }
+  return count;
 }
 
 Vec2 ConditionedPairingModel::innovation(const Pairing& pairing) const {

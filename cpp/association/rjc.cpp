@@ -111,12 +111,8 @@ std::int64_t SequentialAcceptance::step_work(std::int64_t kept) {
 // schedule does not depend on the panels.
 std::int64_t SequentialAcceptance::step(std::int64_t) {
   const std::int64_t kept = conditioned_.kept();
-  const auto left = static_cast<Eigen::Index>(order_.size()) - next_;
-  Eigen::Index count = 0;
-  for (std::int64_t bound = 0; count < std::min(left, kMaxPanelPairings); ++count) {
-    bound += step_work(kept + count);
-    if (count >= kMinPanelPairings && bound > work_units(work_unit_)) break;
-  }
+  const Eigen::Index count = ConditionedPairingModel::panel_pairings(
+      kept, static_cast<Eigen::Index>(order_.size()) - next_, work_units(work_unit_));
   panel_.assign(order_.begin() + next_, order_.begin() + next_ + count);
   panel_gates_.resize(static_cast<std::size_t>(count));
   for (Eigen::Index p = 0; p < count; ++p) {

@@ -258,14 +258,14 @@ TEST(Rjc, SequentialAcceptanceDecidesAlikeInPanelsOfAnySize) {
   for (int removals = 0; removals < 2; ++second_removal) removals += expected[order[second_removal].measurement] == kStar;
   std::size_t third_removal = second_removal;
   while (expected[order[third_removal].measurement] != kStar) ++third_removal;
-  ASSERT_LT(third_removal, static_cast<std::size_t>(SequentialAcceptance::kMaxPanelPairings));
+  ASSERT_LT(third_removal, static_cast<std::size_t>(ConditionedPairingModel::kMaxPanelPairings));
   for (std::size_t a = 0; a < order.size(); ++a) {
     const int measurement = order[a].measurement;
     EXPECT_EQ(stopped[measurement], a < second_removal ? expected[measurement] : feature_of[measurement]);
   }
   const auto pairings = static_cast<std::int64_t>(order.size());
-  EXPECT_EQ(steps[0], (pairings + SequentialAcceptance::kMinPanelPairings - 1) / SequentialAcceptance::kMinPanelPairings);
-  EXPECT_EQ(steps[1], (pairings + SequentialAcceptance::kMaxPanelPairings - 1) / SequentialAcceptance::kMaxPanelPairings);
+  EXPECT_EQ(steps[0], (pairings + ConditionedPairingModel::kMinPanelPairings - 1) / ConditionedPairingModel::kMinPanelPairings);
+  EXPECT_EQ(steps[1], (pairings + ConditionedPairingModel::kMaxPanelPairings - 1) / ConditionedPairingModel::kMaxPanelPairings);
 }
 
 // The completion's two primitives against the chain rule: a's distance conditioned on all

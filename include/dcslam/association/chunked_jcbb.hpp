@@ -51,9 +51,10 @@ struct ChunkedJcbbResult {
   bool abandoned = false;  // stopped where it could no longer beat options.to_beat
 };
 
-// Resumable (ResumableWork): a step gates one measurement's candidates, starts a chunk's JCBB
-// (ranks its candidates), expands its search by options.work_unit, or keeps one of its
-// pairings; the steps depend on the sizes and the search alone, so the result is bitwise the
+// Resumable (ResumableWork): a step gates one measurement's candidates (solving those of the
+// next few measurements with them, ConditionedPairingModel::prepare()), starts a chunk's JCBB
+// (ranks its candidates), expands its search by options.work_unit, or keeps a panel of its
+// pairings (ConditionedPairingModel::keep_each_within()); the steps depend on the sizes and the search alone, so the result is bitwise the
 // same however the work is sliced. `candidates` (per measurement, features 0..n-1 with
 // n = num_features) and `model` must outlive it.
 class ChunkedJcbb : public ResumableWork<ChunkedJcbb> {
@@ -126,6 +127,9 @@ class ChunkedJcbb : public ResumableWork<ChunkedJcbb> {
   std::optional<ChunkModel> chunk_model_;  // while its JCBB searches
   std::vector<Pairing> accepted_;  // the chunk's pairings (global), to keep
   std::size_t next_kept_ = 0;
+  std::vector<Pairing> panel_;  // the pairings a step solves or keeps at once
+  std::vector<double> panel_gates_;
+  std::vector<char> panel_kept_;
 };
 
 }  // namespace dcslam

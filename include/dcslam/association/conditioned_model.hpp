@@ -15,6 +15,7 @@
 #include <Eigen/Core>
 
 #include "dcslam/association/jcbb.hpp"
+#include "dcslam/core/resumable_work.hpp"
 
 namespace dcslam {
 
@@ -48,8 +49,18 @@ class ConditionedPairingModel : public PairingModel {
   // Caches the conditioned cross term of each of `pairings` not cached yet, with one triangular
   // solve for all of them: a candidate list gated at once reads the factor L once, not once a
   // candidate (the solve of a few columns is bound by memory at the sizes of large joins).
-  // The values are those cached_cross() would compute one by one.
-  void prepare(const std::vector<Pairing>& pairings) const;
+  // The values are those cached_cross() would compute one by one. Returns how many it solved.
+  std::size_t prepare(const std::vector<Pairing>& pairings) const;
+  // Whether `pairing`'s conditioned cross term is cached (or nothing is kept, where it needs none).
+  bool prepared(const Pairing& pairing) const;
+
+  // How many of `left` pairings one panel (keep_each_within(), prepare()) takes with `kept`
+  // kept: as many as keep their condition_work() within `work_unit` units, at least
+  // kMinPanelPairings (four still keep a step near a millisecond at the largest joins measured,
+  // where one pairing alone exceeds a unit) and at most kMaxPanelPairings, and at most `left`.
+  static Eigen::Index panel_pairings(std::int64_t kept, Eigen::Index left, std::int64_t work_unit);
+  static constexpr Eigen::Index kMinPanelPairings = 4;
+  static constexpr Eigen::Index kMaxPanelPairings = kDefaultPanelWidth / 2;
 
   int kept() const { return static_cast<int>(kept_.size()); }
   // D^2 of the kept pairings (chain rule).

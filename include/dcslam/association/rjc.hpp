@@ -150,16 +150,12 @@ int enforce_joint_compatibility(std::vector<int>& feature_of, const PairingModel
                                 double confidence, double* joint_distance_sq = nullptr);
 
 // accept_sequentially() as resumable work (ResumableWork): a step tests a panel of pairings
-// (ConditionedPairingModel::keep_each_within(), O(k^2) each), as many as keep the step's work
-// within `work_unit` multiply-adds, at least kMinPanelPairings and at most kMaxPanelPairings:
-// the panel depends on the pairings kept so far and the unit alone, never on the budget.
+// (ConditionedPairingModel::keep_each_within(), O(k^2) each) within `work_unit` multiply-adds
+// (ConditionedPairingModel::panel_pairings()): the panel depends on the pairings kept so far
+// and the unit alone, never on the budget.
 // The referenced arguments must outlive it.
 class SequentialAcceptance : public ResumableWork<SequentialAcceptance> {
  public:
-  // At 300 kept pairings a work unit holds two pairings; four still keep a step near 0.1 ms.
-  static constexpr Eigen::Index kMinPanelPairings = 4;
-  static constexpr Eigen::Index kMaxPanelPairings = kDefaultPanelWidth / 2;
-
   SequentialAcceptance(const std::vector<Pairing>& order, int seed_size,
                        std::vector<int>& feature_of, const PairingModel& model, double gate,
                        std::int64_t work_unit = kDefaultWorkUnit);
