@@ -23,9 +23,7 @@ ConditionedPairingModel::ConditionedPairingModel(const PairingModel& base, Eigen
 }
 
 void ConditionedPairingModel::write_cross(const Pairing& pairing, CrossColumns cross) const {
-  for (std::size_t c = 0; c < kept_.size(); ++c) {
-    cross.middleRows<2>(2 * static_cast<Eigen::Index>(c)) = base_.covariance(kept_[c], pairing);
-  }
+  base_.covariances_with(kept_.data(), kept_.size(), pairing, cross);
 }
 
 void ConditionedPairingModel::solve_cross(const Pairing& pairing, CrossBlock& cross) const {

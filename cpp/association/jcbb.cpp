@@ -285,6 +285,11 @@ bool Jcbb::expand(std::int64_t nodes) {
   return true;
 }
 
+void PairingModel::covariances_with(const Pairing* pairings, std::size_t count, const Pairing& b,
+                                    CrossColumns cross) const {
+  for (std::size_t c = 0; c < count; ++c) cross.middleRows<2>(2 * static_cast<Eigen::Index>(c)) = covariance(pairings[c], b);
+}
+
 bool Jcbb::extend(int depth, const Pairing& pairing, double& distance_sq, double& score_gain) {
   // Appending pairing a to H: with C_Ha = cov(nu_H, nu_a) and X = L^-1 C_Ha, the new factor
   // row is [X', chol(C_aa - X'X)] and the new whitened entry chol(..)^-1 (nu_a - X' w_H).
@@ -294,9 +299,7 @@ bool Jcbb::extend(int depth, const Pairing& pairing, double& distance_sq, double
   // and products, whose set-up dominates at these sizes.
   Mat2 schur = model_->covariance(pairing, pairing);
   Vec2 residual = model_->innovation(pairing);
-  for (int t = 0; t < depth; ++t) {
-    cross_.middleRows<2>(2 * t) = model_->covariance(hypothesis_[t], pairing);
-  }
+  model_->covariances_with(hypothesis_.data(), static_cast<std::size_t>(depth), pairing, cross_.topRows(rows));
   for (int r = 0; r < rows; ++r) {
     double x0 = cross_(r, 0), x1 = cross_(r, 1);
     for (int c = 0; c < r; ++c) {

@@ -45,10 +45,23 @@ Vec2 JoinPairingModel::innovation(const Pairing& p) const {
 }
 
 Mat2 JoinPairingModel::covariance(const Pairing& a, const Pairing& b) const {
-  Mat2 covariance = frame_.constraint_covariance(a.feature, a.measurement, b.feature, b.measurement);
+  return with_feature_variance(a, b, frame_.constraint_covariance(a.feature, a.measurement, b.feature, b.measurement));
+}
+
+Mat2 JoinPairingModel::with_feature_variance(const Pairing& a, const Pairing& b, Mat2 covariance) const {
   const int shared = (a.feature == b.feature ? 1 : 0) + (a.measurement == b.measurement ? 1 : 0);
   covariance.diagonal().array() += shared * feature_variance_;
   return covariance;
+}
+
+void JoinPairingModel::covariances_with(const Pairing* pairings, std::size_t count, const Pairing& b,
+                                        CrossColumns cross) const {
+  const JoinFrame::ConstraintColumn column = frame_.constraint_column(b.feature, b.measurement);
+  for (std::size_t c = 0; c < count; ++c) {
+    const Pairing& a = pairings[c];
+    cross.middleRows<2>(2 * static_cast<Eigen::Index>(c)) =
+        with_feature_variance(a, b, frame_.constraint_covariance(column, a.feature, a.measurement));
+  }
 }
 
 std::vector<std::pair<Index, Index>> associate_by_id(const GaussianMap& first,

@@ -93,4 +93,23 @@ Mat2 JoinFrame::constraint_covariance(Index i, Index j, Index k, Index l) const 
          second_second(j, l);
 }
 
+// cov(h_(k,l), h_(i,j)) = P1[k,i] - P1[k,R] J_j' - J_l P1[R,i] + J_l P_RR J_j' + Rot P2[l,j] Rot'.
+JoinFrame::ConstraintColumn JoinFrame::constraint_column(Index i, Index j) const {
+  ConstraintColumn column;
+  column.i = i;
+  column.j = j;
+  column.jacobian_j = J_R_.middleRows<2>(GaussianMap::feature_offset(j)).transpose();
+  column.robot_terms = first_.P().topLeftCorner<3, 3>() * column.jacobian_j -
+                       first_.P().block<3, 2>(0, GaussianMap::feature_offset(i));
+  return column;
+}
+
+Mat2 JoinFrame::constraint_covariance(const ConstraintColumn& column, Index k, Index l) const {
+  const Index ok = GaussianMap::feature_offset(k), ol = GaussianMap::feature_offset(l);
+  const Mat2 second = second_.P().block<2, 2>(ol, GaussianMap::feature_offset(column.j));
+  return first_.P().block<2, 2>(ok, GaussianMap::feature_offset(column.i)) -
+         first_.P().block<2, 3>(ok, 0) * column.jacobian_j + J_R_.middleRows<2>(ol) * column.robot_terms +
+         rotation_ * second * rotation_.transpose();
+}
+
 }  // namespace dcslam

@@ -322,7 +322,20 @@ TEST(JoinFrame, CovarianceBlocksEqualTheDenseStackedCovariance) {
       H_b.block<2, 2>(0, row1(k)).setIdentity();
       H_b.block<2, 2>(0, row2(l)) = -Mat2::Identity();
       EXPECT_LT((frame.constraint_covariance(i, j, k, l) - H_a * P * H_b.transpose()).norm(), 1e-12);
+      EXPECT_LT((frame.constraint_covariance(frame.constraint_column(k, l), i, j) - H_a * P * H_b.transpose()).norm(),
+                1e-12);
       EXPECT_LT((frame.moved_second_feature(j) - transform_point(m1.robot(), m2.feature(j))).norm(), 1e-12);
+    }
+  }
+  // The join's pairing model gives a pairing's blocks with many at once as one at a time, the
+  // feature error included where two pairings share a feature (and a pairing with itself).
+  const JoinPairingModel model(frame, 0.3);
+  const std::vector<Pairing> pairings{{0, 0}, {1, 2}, {2, 2}, {1, 4}, {3, 1}, {0, 3}};
+  for (const Pairing& b : pairings) {
+    Eigen::Matrix<double, Eigen::Dynamic, 2> cross(2 * static_cast<Index>(pairings.size()), 2);
+    model.covariances_with(pairings.data(), pairings.size(), b, cross);
+    for (std::size_t c = 0; c < pairings.size(); ++c) {
+      EXPECT_LT((cross.middleRows<2>(2 * static_cast<Index>(c)) - model.covariance(pairings[c], b)).norm(), 1e-12);
     }
   }
 }

@@ -70,7 +70,6 @@ class ConditionedPairingModel : public PairingModel {
 
  private:
   using CrossBlock = Eigen::Matrix<double, Eigen::Dynamic, 2>;
-  using CrossColumns = Eigen::Ref<Eigen::Matrix<double, Eigen::Dynamic, 2>, 0, Eigen::OuterStride<>>;
   // Writes C_Ka, the covariances of the kept pairings with `pairing`, into the 2|K| x 2 `cross`.
   void write_cross(const Pairing& pairing, CrossColumns cross) const;
   // nu_a|K and C_aa|K of `pairing`, leaving its w_a in cross_ for keep().

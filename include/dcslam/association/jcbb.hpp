@@ -4,6 +4,7 @@
 // over how innovations and their covariances are computed: an EKF step pairs scan
 // measurements with map features, a map join pairs features of the second map with features
 // of the first.
+#include <cstddef>
 #include <cstdint>
 #include <limits>
 #include <utility>
@@ -35,9 +36,16 @@ inline constexpr int kStar = -1;
 // below only call covariance(a, b) with a == b or a.measurement != b.measurement.
 class PairingModel {
  public:
+  using CrossColumns = Eigen::Ref<Eigen::Matrix<double, Eigen::Dynamic, 2>, 0, Eigen::OuterStride<>>;
+
   virtual ~PairingModel() = default;
   virtual Vec2 innovation(const Pairing& pairing) const = 0;
   virtual Mat2 covariance(const Pairing& a, const Pairing& b) const = 0;
+  // covariance(pairings[c], b) for c < count, as the c-th 2-row block of `cross` (2 count x 2):
+  // a pairing's cross covariance with a hypothesis or a kept set. A model whose blocks share
+  // work along b overrides it (the same blocks, up to rounding).
+  virtual void covariances_with(const Pairing* pairings, std::size_t count, const Pairing& b,
+                                CrossColumns cross) const;
 };
 
 // candidates[i] lists the features that measurement i may be paired with (usually the

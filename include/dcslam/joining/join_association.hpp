@@ -71,8 +71,12 @@ class JoinPairingModel : public PairingModel {
       : frame_(frame), feature_variance_(feature_sigma * feature_sigma) {}
   Vec2 innovation(const Pairing& p) const override;
   Mat2 covariance(const Pairing& a, const Pairing& b) const override;
+  // Through JoinFrame::constraint_column(): b's terms once, P read along b's columns.
+  void covariances_with(const Pairing* pairings, std::size_t count, const Pairing& b,
+                        CrossColumns cross) const override;
 
  private:
+  Mat2 with_feature_variance(const Pairing& a, const Pairing& b, Mat2 covariance) const;
   const JoinFrame& frame_;
   double feature_variance_;
 };

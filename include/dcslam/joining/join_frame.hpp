@@ -54,6 +54,17 @@ class JoinFrame {
   // cov(h_a, h_b) for the constraints h_a = f_i - f'_j and h_b = f_k - f'_l.
   Mat2 constraint_covariance(Eigen::Index i, Eigen::Index j, Eigen::Index k,
                              Eigen::Index l) const;
+  // The same blocks along one column (i, j) of S, cov(h_(k,l), h_(i,j)) for many (k, l): what
+  // depends on (i, j) alone is computed once, and P's blocks are read in the columns of i and j
+  // (P is symmetric), which a run over (k, l) reads in order, not one scattered pair of
+  // columns a block. 40 multiply-adds a block instead of 70.
+  struct ConstraintColumn {
+    Eigen::Index i = 0, j = 0;
+    Eigen::Matrix<double, 3, 2> jacobian_j;  // J_j'
+    Eigen::Matrix<double, 3, 2> robot_terms;  // P_RR J_j' - P1[R, i]
+  };
+  ConstraintColumn constraint_column(Eigen::Index i, Eigen::Index j) const;
+  Mat2 constraint_covariance(const ConstraintColumn& column, Eigen::Index k, Eigen::Index l) const;
 
   // J_R: d(x_{B1 R1} ⊕ e)/d x_{B1 R1} for every element e of m2, stacked (d2 x 3).
   const Eigen::Matrix<double, Eigen::Dynamic, 3>& jacobian_first_robot() const { return J_R_; }
