@@ -84,7 +84,7 @@ Mat2 ConditionedPairingModel::covariance(const Pairing& a, const Pairing& b) con
   if (kept_.empty()) return base_.covariance(a, b);
   const CrossBlock& cross_a = cached_cross(a);
   const CrossBlock& cross_b = cached_cross(b);  // an insertion leaves cross_a's storage in place
-  return base_.covariance(a, b) - cross_a.transpose() * cross_b;
+  return base_.covariance(a, b) - cross_a.transpose().lazyProduct(cross_b);
 }
 
 void ConditionedPairingModel::condition(const Pairing& pairing, Vec2& innovation, Mat2& covariance) {
@@ -92,7 +92,7 @@ void ConditionedPairingModel::condition(const Pairing& pairing, Vec2& innovation
   solve_cross(pairing, cross_);
   auto cross_kept = cross_.topRows(2 * m);
   innovation = base_.innovation(pairing) - cross_kept.transpose() * whitened_.head(2 * m);
-  covariance = base_.covariance(pairing, pairing) - cross_kept.transpose() * cross_kept;
+  covariance = base_.covariance(pairing, pairing) - cross_kept.transpose().lazyProduct(cross_kept);
 }
 
 void ConditionedPairingModel::reserve_factor(Eigen::Index rows) {
