@@ -152,6 +152,14 @@ void Jcbb::prepare(const CandidateLists& candidates, const PairingModel& model,
       for (const auto& [distance_sq, feature] : ranked_) ordered.push_back(feature);
     }
   }
+  own_slot_begin_.assign(static_cast<std::size_t>(m), 0);
+  std::size_t slots = 0;
+  for (int i = 0; i < m; ++i) {
+    own_slot_begin_[static_cast<std::size_t>(i)] = slots;
+    slots += (*ordered_)[static_cast<std::size_t>(i)].size();
+  }
+  if (own_terms_.size() < slots) own_terms_.resize(slots);
+  own_known_.assign(slots, 0);
   int pairable = 0;
   score_bound_from_.assign(static_cast<std::size_t>(m) + 1, 0.0);
   for (int i = m - 1; i >= 0; --i) {
@@ -265,9 +273,10 @@ bool Jcbb::expand(std::int64_t nodes) {
       }
       if (feature_in_use(frame.depth, feature)) continue;
       const Pairing pairing{frame.measurement, feature};
+      const std::size_t slot = own_slot_begin_[static_cast<std::size_t>(frame.measurement)] + frame.next - 1;
       double extended_distance_sq = frame.distance_sq;
       double gain = 0.0;
-      if (!extend(frame.depth, pairing, extended_distance_sq, gain)) continue;
+      if (!extend(frame.depth, pairing, slot, extended_distance_sq, gain)) continue;
       if (!can_improve(bound_after + gain, extended_distance_sq)) continue;
       hypothesis_[frame.depth] = pairing;
       enter(frame.measurement + 1, frame.depth + 1, extended_distance_sq, frame.score + gain);
@@ -290,15 +299,26 @@ void PairingModel::covariances_with(const Pairing* pairings, std::size_t count, 
   for (std::size_t c = 0; c < count; ++c) cross.middleRows<2>(2 * static_cast<Eigen::Index>(c)) = covariance(pairings[c], b);
 }
 
-bool Jcbb::extend(int depth, const Pairing& pairing, double& distance_sq, double& score_gain) {
+const Jcbb::OwnTerms& Jcbb::own_terms(std::size_t slot, const Pairing& pairing) {
+  OwnTerms& terms = own_terms_[slot];
+  if (!own_known_[slot]) {
+    terms.covariance = model_->covariance(pairing, pairing);
+    terms.innovation = model_->innovation(pairing);
+    own_known_[slot] = 1;
+  }
+  return terms;
+}
+
+bool Jcbb::extend(int depth, const Pairing& pairing, std::size_t slot, double& distance_sq, double& score_gain) {
   // Appending pairing a to H: with C_Ha = cov(nu_H, nu_a) and X = L^-1 C_Ha, the new factor
   // row is [X', chol(C_aa - X'X)] and the new whitened entry chol(..)^-1 (nu_a - X' w_H).
   const int rows = 2 * depth;
   work_ += kPairingCovarianceUnits * (depth + 1) + depth * depth / 2;
   // Hypotheses hold a handful of pairings: plain loops beat Eigen's blocked triangular solve
   // and products, whose set-up dominates at these sizes.
-  Mat2 schur = model_->covariance(pairing, pairing);
-  Vec2 residual = model_->innovation(pairing);
+  const OwnTerms& own = own_terms(slot, pairing);
+  Mat2 schur = own.covariance;
+  Vec2 residual = own.innovation;
   model_->covariances_with(hypothesis_.data(), static_cast<std::size_t>(depth), pairing, cross_.topRows(rows));
   for (int r = 0; r < rows; ++r) {
     double x0 = cross_(r, 0), x1 = cross_(r, 1);

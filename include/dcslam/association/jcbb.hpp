@@ -182,10 +182,17 @@ class Jcbb {
   // Visits a node: counts it, records it if it is the best so far and, unless it is a leaf,
   // pushes its frame. At the node bound it ends the search instead.
   void enter(int measurement, int depth, double distance_sq, double score);
-  // Tests adding `pairing` to the first `depth` pairings of the current hypothesis; on
-  // success writes its block row of the factor, returns the new D^2 in `distance_sq` and
-  // the pairing's score in `score_gain`.
-  bool extend(int depth, const Pairing& pairing, double& distance_sq, double& score_gain);
+  // Tests adding `pairing`, the candidate at `slot` (own_slot_begin_), to the first `depth`
+  // pairings of the current hypothesis; on success writes its block row of the factor,
+  // returns the new D^2 in `distance_sq` and the pairing's score in `score_gain`.
+  bool extend(int depth, const Pairing& pairing, std::size_t slot, double& distance_sq, double& score_gain);
+  // A candidate's own C_aa and nu_a, computed the first time a node extends by it and kept for
+  // the rest of the search (every node of a subtree extends by the same candidates again).
+  struct OwnTerms {
+    Mat2 covariance;
+    Vec2 innovation;
+  };
+  const OwnTerms& own_terms(std::size_t slot, const Pairing& pairing);
   bool can_improve(double score_upper_bound, double distance_sq_lower_bound) const;
   bool feature_in_use(int depth, int feature) const;
   void record(int depth, double distance_sq, double score);
@@ -207,6 +214,10 @@ class Jcbb {
   Eigen::VectorXd whitened_;    // L^-1 nu_H
   Eigen::MatrixXd cross_;       // scratch: L^-1 C_Ha
   std::vector<std::pair<double, int>> ranked_;  // scratch for candidate ordering
+  // A slot per candidate of the lists searched: measurement i's k-th at own_slot_begin_[i] + k.
+  std::vector<std::size_t> own_slot_begin_;
+  std::vector<OwnTerms> own_terms_;
+  std::vector<char> own_known_;
   std::vector<Frame> frames_;  // the path from the root to the node being expanded
   std::vector<Pairing> best_;
   double best_score_ = 0.0;
