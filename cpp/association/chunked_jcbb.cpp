@@ -93,7 +93,9 @@ std::int64_t ChunkedJcbb::step(std::int64_t) {
 std::int64_t ChunkedJcbb::gate_next() {
   const auto open_pairings = [&](std::size_t measurement, std::vector<Pairing>& open) {
     for (int feature : candidates_[measurement]) {
-      if (!feature_used_[static_cast<std::size_t>(feature)]) open.push_back(Pairing{static_cast<int>(measurement), feature});
+      if (!feature_used_[static_cast<std::size_t>(feature)]) {
+        open.push_back(Pairing{static_cast<int>(measurement), feature});
+      }
     }
   };
   const int measurement = static_cast<int>(next_);

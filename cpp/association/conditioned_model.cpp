@@ -140,10 +140,11 @@ std::size_t ConditionedPairingModel::keep_each_within(const std::vector<Pairing>
   panel_gram_.noalias() = panel_cross_.transpose() * panel_cross_;
   panel_shift_.noalias() = panel_cross_.transpose() * whitened_.head(2 * m);
 
-  Eigen::MatrixXd panel_lower(2 * count, 2 * count);  // the factor of the taken ones given K
-  Eigen::VectorXd panel_whitened(2 * count);
-  CrossBlock panel_cross(2 * count, 2);
-  std::vector<Eigen::Index> taken;
+  panel_lower_.resize(2 * count, 2 * count);
+  panel_whitened_.resize(2 * count);
+  panel_cross_taken_.resize(2 * count, 2);
+  std::vector<Eigen::Index>& taken = panel_taken_;
+  taken.clear();
   int rejections = 0;
   for (Eigen::Index p = 0; p < count && rejections < max_rejections; ++p) {
     const Pairing& pairing = pairings[static_cast<std::size_t>(p)];
@@ -154,12 +155,12 @@ std::size_t ConditionedPairingModel::keep_each_within(const std::vector<Pairing>
     if (t > 0) {
       for (Eigen::Index r = 0; r < t; ++r) {
         const Eigen::Index q = taken[static_cast<std::size_t>(r)];
-        panel_cross.middleRows<2>(2 * r) =
+        panel_cross_taken_.middleRows<2>(2 * r) =
             base_.covariance(pairings[static_cast<std::size_t>(q)], pairing) - panel_gram_.block<2, 2>(2 * q, 2 * p);
       }
-      auto cross_taken = panel_cross.topRows(2 * t);
-      panel_lower.topLeftCorner(2 * t, 2 * t).triangularView<Eigen::Lower>().solveInPlace(cross_taken);
-      innovation -= cross_taken.transpose().lazyProduct(panel_whitened.head(2 * t));
+      auto cross_taken = panel_cross_taken_.topRows(2 * t);
+      panel_lower_.topLeftCorner(2 * t, 2 * t).triangularView<Eigen::Lower>().solveInPlace(cross_taken);
+      innovation -= cross_taken.transpose().lazyProduct(panel_whitened_.head(2 * t));
       covariance -= cross_taken.transpose().lazyProduct(cross_taken);
     }
     const Eigen::LLT<Mat2> factor(covariance);
@@ -168,9 +169,9 @@ std::size_t ConditionedPairingModel::keep_each_within(const std::vector<Pairing>
       ++rejections;
       continue;
     }
-    panel_lower.block(2 * t, 0, 2, 2 * t) = panel_cross.topRows(2 * t).transpose();
-    panel_lower.block<2, 2>(2 * t, 2 * t) = factor.matrixL();
-    panel_whitened.segment<2>(2 * t) = whitened;
+    panel_lower_.block(2 * t, 0, 2, 2 * t) = panel_cross_taken_.topRows(2 * t).transpose();
+    panel_lower_.block<2, 2>(2 * t, 2 * t) = factor.matrixL();
+    panel_whitened_.segment<2>(2 * t) = whitened;
     taken.push_back(p);
     kept.back() = 1;
   }
@@ -180,10 +181,10 @@ std::size_t ConditionedPairingModel::keep_each_within(const std::vector<Pairing>
   for (Eigen::Index r = 0; r < t; ++r) {
     const Eigen::Index q = taken[static_cast<std::size_t>(r)];
     lower_.block(2 * (m + r), 0, 2, 2 * m) = panel_cross_.middleCols<2>(2 * q).transpose();
-    lower_.block(2 * (m + r), 2 * m, 2, 2 * (r + 1)) = panel_lower.block(2 * r, 0, 2, 2 * (r + 1));
+    lower_.block(2 * (m + r), 2 * m, 2, 2 * (r + 1)) = panel_lower_.block(2 * r, 0, 2, 2 * (r + 1));
     kept_.push_back(pairings[static_cast<std::size_t>(q)]);
   }
-  whitened_.segment(2 * m, 2 * t) = panel_whitened.head(2 * t);
+  whitened_.segment(2 * m, 2 * t) = panel_whitened_.head(2 * t);
   cache_.clear();
   return kept.size();
 }

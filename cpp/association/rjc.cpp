@@ -116,9 +116,11 @@ std::int64_t SequentialAcceptance::step(std::int64_t) {
   panel_.assign(order_.begin() + next_, order_.begin() + next_ + count);
   panel_gates_.resize(static_cast<std::size_t>(count));
   for (Eigen::Index p = 0; p < count; ++p) {
-    panel_gates_[static_cast<std::size_t>(p)] = next_ + p < seed_size_ ? std::numeric_limits<double>::infinity() : gate_;
+    const bool seed = next_ + p < seed_size_;
+    panel_gates_[static_cast<std::size_t>(p)] = seed ? std::numeric_limits<double>::infinity() : gate_;
   }
-  const std::size_t tested = conditioned_.keep_each_within(panel_, panel_gates_, std::max(1, removal_limit_ - removed_), panel_kept_);
+  const std::size_t tested =
+      conditioned_.keep_each_within(panel_, panel_gates_, std::max(1, removal_limit_ - removed_), panel_kept_);
   next_ += static_cast<Eigen::Index>(tested);
   std::int64_t work = 0;
   std::int64_t kept_before = kept;

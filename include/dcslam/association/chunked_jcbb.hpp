@@ -54,8 +54,8 @@ struct ChunkedJcbbResult {
 // Resumable (ResumableWork): a step gates one measurement's candidates (solving those of the
 // next few measurements with them, ConditionedPairingModel::prepare()), starts a chunk's JCBB
 // (ranks its candidates), expands its search by options.work_unit, or keeps a panel of its
-// pairings (ConditionedPairingModel::keep_each_within()); the steps depend on the sizes and the search alone, so the result is bitwise the
-// same however the work is sliced. `candidates` (per measurement, features 0..n-1 with
+// pairings (ConditionedPairingModel::keep_each_within()); the steps depend on the sizes and
+// the search alone, so the result is bitwise the same however the work is sliced. `candidates` (per measurement, features 0..n-1 with
 // n = num_features) and `model` must outlive it.
 class ChunkedJcbb : public ResumableWork<ChunkedJcbb> {
  public:

@@ -90,6 +90,12 @@ class ConditionedPairingModel : public PairingModel {
   Eigen::MatrixXd panel_cross_;  // keep_each_within()'s w_a, a pair of columns per pairing,
   Eigen::MatrixXd panel_gram_;   // their w_a' w_b
   Eigen::VectorXd panel_shift_;  // and their w_a' L^-1 nu_K
+  // keep_each_within()'s pairings given K and each other: the factor of those it took, their
+  // whitened innovations, a pairing's cross terms with them, and their positions in the panel.
+  Eigen::MatrixXd panel_lower_;
+  Eigen::VectorXd panel_whitened_;
+  CrossBlock panel_cross_taken_;
+  std::vector<Eigen::Index> panel_taken_;
   std::vector<Pairing> kept_;
   mutable std::unordered_map<std::uint64_t, CrossBlock> cache_;
 };
