@@ -61,6 +61,7 @@ void define_config(py::module_& m) {
       .def_readwrite("seed", &SlamConfig::seed)
       .def_readwrite("amortize", &SlamConfig::amortize)
       .def_readwrite("threaded_joins", &SlamConfig::threaded_joins)
+      .def_readwrite("estimate_threads", &SlamConfig::estimate_threads)
       .def_readwrite("keep_local_map_poses", &SlamConfig::keep_local_map_poses)
       .def_readwrite("online_localisation_sigma", &SlamConfig::online_localisation_sigma)
       .def("validate", &SlamConfig::validate);

@@ -71,6 +71,8 @@ void SlamConfig::validate() const {
               (*confirmed_first_confidence > 0.0 && *confirmed_first_confidence < 1.0),
           "confirmed_first_confidence: must lie in (0, 1) or be None, got " +
               (confirmed_first_confidence ? number_text(*confirmed_first_confidence) : std::string()));
+  require(estimate_threads >= 0,
+          "estimate_threads: must be >= 0 (0: every hardware thread), got " + std::to_string(estimate_threads));
   require(tentative_window >= 1,
           "tentative_window: must be >= 1, got " + std::to_string(tentative_window));
   require(weak_join_pairings >= 0,

@@ -152,7 +152,7 @@ class Reader {
 
 // A field added to SlamConfig must be added here too (and kCheckpointVersion raised): the size
 // check below fails the build until it is.
-static_assert(sizeof(SlamConfig) == 240, "SlamConfig changed: update save_config/load_config");
+static_assert(sizeof(SlamConfig) == 248, "SlamConfig changed: update save_config/load_config");
 
 // A flag and the value (0 when unset), read back as set or unset whatever the field's default.
 template <typename T>
@@ -199,6 +199,7 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod(c.seed);
   out.pod<std::uint8_t>(c.amortize);
   out.pod<std::uint8_t>(c.threaded_joins);
+  out.pod(c.estimate_threads);
   out.pod<std::uint8_t>(c.keep_local_map_poses);
   optional_value(out, c.online_localisation_sigma);
 }
@@ -242,6 +243,7 @@ SlamConfig load_config(Reader& in) {
   c.seed = in.pod<std::uint64_t>();
   c.amortize = in.flag();
   c.threaded_joins = in.flag();
+  c.estimate_threads = in.pod<int>();
   c.keep_local_map_poses = in.flag();
   c.online_localisation_sigma = optional_value<double>(in);
   c.validate();  // InvalidArgument naming the field

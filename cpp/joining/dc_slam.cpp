@@ -13,6 +13,7 @@
 #include "dcslam/core/errors.hpp"
 #include "dcslam/association/feature_merging.hpp"
 #include "dcslam/joining/join_tree.hpp"
+#include "dcslam/joining/parallel_tasks.hpp"
 #include "dcslam/joining/tentative_features.hpp"
 
 namespace dcslam {
@@ -732,6 +733,7 @@ TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settle
   const Node& right = *node.right->node;
   const std::unique_ptr<DecidingJoin> join = make_join(first, second, left, right, node.index);
   try {
+    join->associate(estimate_thread_count(config_.estimate_threads));
     join->finish();
   } catch (const std::exception& error) {
     // The real join fails the same way when it runs, and rolls the filter back then.
@@ -774,6 +776,7 @@ std::vector<std::pair<std::int64_t, std::int64_t>> DCSlam::merge_after_join(int 
 std::shared_ptr<JoinAssociationMemo> DCSlam::FoldAssociations::memo(const std::shared_ptr<const GaussianMap>& first,
                                                                     const std::shared_ptr<const GaussianMap>& second,
                                                                     std::size_t position) {
+  std::lock_guard<std::mutex> lock(mutex_);
   // A map no longer alive cannot be joined again, and its address may be another map's now.
   entries_.erase(std::remove_if(entries_.begin(), entries_.end(),
                                 [](const Entry& entry) { return entry.first.expired() || entry.second.expired(); }),
@@ -810,7 +813,8 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
     state.result.reset();  // the join holds its input as long as it needs it
     auto join = std::make_shared<DecidingJoin>(input.map, std::move(state.joined), std::move(make),
                                                weak_pairings(!last), /*spans_many_maps=*/true);
-    run_fold_join(*join, inputs, position, associate_only);  // at most the inputs and the result are alive
+    // At most the inputs and the result are alive.
+    run_fold_join(*join, inputs, position, associate_only, estimate_thread_count(config_.estimate_threads));
     JoinEvent event;
     event.index = static_cast<int>(position);
     event.step_created = event.step_finished = steps_;
@@ -845,13 +849,10 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
 }
 
 void DCSlam::run_fold_join(DecidingJoin& join, const std::vector<FoldInput>& inputs, std::size_t position,
-                           bool associate_only) {
+                           bool associate_only, int threads) {
   try {
-    if (associate_only) {
-      join.associate();
-    } else {
-      join.finish();
-    }
+    join.associate(threads);
+    if (!associate_only) join.finish();
   } catch (const std::exception& error) {
     throw InvalidArgument("DCSlam::estimate: the join of the stack's map " +
                           std::to_string(inputs.size() - 1 - position) + " with the maps after it failed: " +
@@ -878,7 +879,7 @@ void DCSlam::take_fold_join(FoldState& state, DecidingJoin& join, const std::vec
 void DCSlam::make_last_fold_join(FoldState& state, const std::vector<FoldInput>& inputs) const {
   const std::shared_ptr<DecidingJoin> join = std::move(state.last_join);
   const std::size_t position = inputs.size() - 1;
-  run_fold_join(*join, inputs, position, /*associate_only=*/false);
+  run_fold_join(*join, inputs, position, /*associate_only=*/false, estimate_thread_count(config_.estimate_threads));
   take_fold_join(state, *join, inputs, position);
 }
 
@@ -903,19 +904,25 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
   // made does not change what that join can pair, so the rest of the fold would only count the
   // pairs it left out: it is not carried through (the rest of the fold is most of estimate()'s
   // work on a loop closed in the fold). The next join's association is kept for the fold after.
+  // The versions are carried through side by side (estimate_threads), each fold on its own
+  // maps; a batch of as many as there are threads at a time, so that no more folds' maps are
+  // alive at once than run at once (one and the best so far with a single thread).
+  const int threads = estimate_thread_count(config_.estimate_threads);
   std::vector<int> compared{0};
   const int versions = static_cast<int>(alternative->versions.size());
   if (position + 1 < inputs.size()) {
-    std::size_t next_of_made = 0;
+    std::vector<std::size_t> next_pairs(static_cast<std::size_t>(versions + 1));
+    std::vector<std::function<void()>> tasks;
     for (int version = 0; version <= versions; ++version) {
-      const FoldState next = fold(start_of(version), inputs, position, associations, /*comparing_versions=*/true,
-                                  position + 1);
-      const std::size_t next_pairs = next.joins[position].pairing.pairs.size();
-      if (version == 0) {
-        next_of_made = next_pairs;
-      } else if (next_pairs > next_of_made) {
-        compared.push_back(version);
-      }
+      tasks.emplace_back([&, version] {
+        const FoldState next = fold(start_of(version), inputs, position, associations, /*comparing_versions=*/true,
+                                    position + 1);
+        next_pairs[static_cast<std::size_t>(version)] = next.joins[position].pairing.pairs.size();
+      });
+    }
+    run_tasks(tasks, threads);
+    for (int version = 1; version <= versions; ++version) {
+      if (next_pairs[static_cast<std::size_t>(version)] > next_pairs[0]) compared.push_back(version);
     }
     if (compared.size() == 1) return fold(start_of(0), inputs, position, associations);
   } else {
@@ -923,13 +930,26 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
   }
   FoldState best;
   std::size_t best_pairs = 0;
-  for (const int version : compared) {
-    FoldState rest = fold(start_of(version), inputs, position, associations, /*comparing_versions=*/true);
-    std::size_t pairs = 0;
-    for (std::size_t k = weak; k < rest.joins.size(); ++k) pairs += rest.joins[k].pairing.pairs.size();
-    if (version == 0 || pairs > best_pairs) {
-      best = std::move(rest);
-      best_pairs = pairs;
+  const auto batch_size = static_cast<std::size_t>(threads);
+  for (std::size_t begin = 0; begin < compared.size(); begin += batch_size) {
+    const std::size_t end = std::min(compared.size(), begin + batch_size);
+    std::vector<FoldState> rests(end - begin);
+    std::vector<std::function<void()>> tasks;
+    for (std::size_t k = begin; k < end; ++k) {
+      tasks.emplace_back([&, k] {
+        rests[k - begin] =
+            fold(start_of(compared[k]), inputs, position, associations, /*comparing_versions=*/true);
+      });
+    }
+    run_tasks(tasks, threads);
+    for (std::size_t k = begin; k < end; ++k) {
+      FoldState& rest = rests[k - begin];
+      std::size_t pairs = 0;
+      for (std::size_t j = weak; j < rest.joins.size(); ++j) pairs += rest.joins[j].pairing.pairs.size();
+      if (k == 0 || pairs > best_pairs) {
+        best = std::move(rest);
+        best_pairs = pairs;
+      }
     }
   }
   if (!best.after_first_weak) {

@@ -1,8 +1,12 @@
 #include "dcslam/joining/join_alternatives.hpp"
 
 #include <algorithm>
+#include <functional>
 #include <limits>
 #include <unordered_set>
+#include <vector>
+
+#include "dcslam/joining/parallel_tasks.hpp"
 
 namespace dcslam {
 
@@ -83,8 +87,19 @@ std::int64_t DecidingJoin::step(std::int64_t budget) {
   return 0;
 }
 
-void DecidingJoin::associate() {
-  while (!associated()) step(std::numeric_limits<std::int64_t>::max());
+void DecidingJoin::associate(int threads) {
+  constexpr std::int64_t kWhole = std::numeric_limits<std::int64_t>::max();
+  if (phase_ == Phase::Choose && threads > 1 && candidates_.size() > 1) {
+    std::vector<std::function<void()>> tasks;
+    for (Candidate& candidate : candidates_) {
+      tasks.emplace_back([&join = *candidate.join] {
+        while (!join.associated()) join.step(kWhole);
+      });
+    }
+    run_tasks(tasks, threads);
+    choose();
+  }
+  while (!associated()) step(kWhole);
 }
 
 std::int64_t DecidingJoin::remaining_work() const {

@@ -206,6 +206,12 @@ class SlamConfig:
         amortize: D&C spreads each join over the following steps (docs/design.md §5.3).
         threaded_joins: D&C runs joins on a background thread while mapping goes on
             (same result as ``amortize``; uses a second core).
+        estimate_threads: D&C: threads ``estimate()`` may use for the parts of its final fold
+            that do not depend on each other (the associations of a join's candidate
+            versions, the rest of the fold carried through each version of a weak fold
+            join); the estimate is bitwise the same for every count. 0 (default): every
+            hardware thread; 1: the calling thread only (one core per process, say, when
+            runs are spread over processes).
         keep_local_map_poses: D&C keeps the robot pose at every local-map boundary in the
             map, with its covariance: ``Estimate.past_poses``, ``past_pose_ids`` and
             ``joint_covariance`` (docs/design.md §4.5). No effect on :class:`~dcslam.EkfSlam`.
@@ -254,6 +260,7 @@ class SlamConfig:
     seed: int = 0
     amortize: bool = True
     threaded_joins: bool = False
+    estimate_threads: int = 0
     keep_local_map_poses: bool = False
     online_localisation_sigma: Optional[float] = None
 

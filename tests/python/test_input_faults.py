@@ -147,3 +147,11 @@ def test_the_simulator_refuses_measurement_noise_the_filters_refuse(observation,
 def test_the_chi_square_quantile_prints_the_refused_value():
     with pytest.raises(dcslam.InvalidArgument, match=r"alpha must lie in \(0, 1\), got -1e-09"):
         dcslam._core.chi2_upper_quantile(2.0, -1e-9)
+
+
+def test_estimate_threads_is_a_count_of_zero_or_more():
+    with pytest.raises(ValueError, match=r"SlamConfig.*estimate_threads: must be >= 0 \(0: every hardware thread\), got -1"):
+        dcslam.SlamConfig(estimate_threads=-1).validate()
+    with pytest.raises(ValueError, match="SlamConfig.estimate_threads"):
+        dcslam.SlamConfig(estimate_threads=True).validate()
+    dcslam.SlamConfig(estimate_threads=0).validate()

@@ -168,6 +168,11 @@ struct SlamConfig {
   // D&C: run joins on a background worker thread instead (the multi-core form of the
   // amortized schedule); results are bitwise identical to immediate and amortized joins.
   bool threaded_joins = false;
+  // D&C: threads that estimate() may use for the parts of its fold that do not depend on each
+  // other (the associations of a join's candidate versions, the rest of the fold carried
+  // through each version of a weak fold join); bitwise the same estimate for every count.
+  // 0: every hardware thread; 1: the calling thread only.
+  int estimate_threads = 0;
   // D&C: keep the robot pose at every local-map boundary in the joined map
   // (docs/design.md §4.5), as past poses with their full covariance (Estimate::past_poses);
   // the EKF keeps none.

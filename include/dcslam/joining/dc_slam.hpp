@@ -315,6 +315,7 @@ class DCSlam : public SlamFilter {
       std::size_t position = 0;
       std::shared_ptr<JoinAssociationMemo> memo;
     };
+    std::mutex mutex_;  // the versions of a weak fold join are folded side by side
     std::vector<Entry> entries_;
   };
   // Folds `inputs` (the stack, top first) from `position` on into `state`: each weak fold join
@@ -329,9 +330,10 @@ class DCSlam : public SlamFilter {
                  FoldAssociations& associations, bool comparing_versions = false,
                  std::size_t end = static_cast<std::size_t>(-1)) const;
   // Runs the fold join at `position` to its end, or with `associate_only` until its pairs are
-  // known; a failure names the stack's map.
+  // known, its candidate versions associated on up to `threads` threads; a failure names the
+  // stack's map.
   static void run_fold_join(DecidingJoin& join, const std::vector<FoldInput>& inputs, std::size_t position,
-                            bool associate_only);
+                            bool associate_only, int threads);
   // Makes the fold join at `position` (run by run_fold_join()) and folds its result into `state`.
   void take_fold_join(FoldState& state, DecidingJoin& join, const std::vector<FoldInput>& inputs,
                       std::size_t position) const;

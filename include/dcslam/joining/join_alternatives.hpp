@@ -113,7 +113,9 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
   // that compares joins by their pairs needs, before the costlier rest (the fill).
   bool associated() const { return phase_ != Phase::Choose && chosen_->associated(); }
   // Steps until associated(); finish() then makes the rest, the same steps as without this.
-  void associate();
+  // `threads` > 1: the candidates' associations run side by side (run_tasks()), each the same
+  // steps as one after the other, so the choice and the join are the same.
+  void associate(int threads = 1);
   std::int64_t remaining_work() const;
 
   // Valid once done(). The versions joined:
