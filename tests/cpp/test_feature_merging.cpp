@@ -104,6 +104,31 @@ TEST(FeatureMerging, MergesEveryMutuallyUniqueCompatiblePairAndNothingElse) {
   EXPECT_LT((map.P() - expected.P()).cwiseAbs().maxCoeff(), 1e-12);
 }
 
+// A round's merges read and update P's lower triangle and mirror it once (O(n^2) a round, not a
+// merge): bitwise what merging one pair at a time with impose_equal_features() gives, P
+// mirrored after each. Three pairs merged in one round of a map with a dense covariance.
+TEST(FeatureMerging, ARoundsMergesAreBitwiseThoseMadeOneAtATime) {
+  GaussianMap map = random_map(10, 11);
+  for (Eigen::Index k = 0; k < 5; ++k) map.x().segment<2>(GaussianMap::feature_offset(k)) = Vec2(10.0 * k, 0.0);
+  for (Eigen::Index k = 5; k < 8; ++k) {
+    map.x().segment<2>(GaussianMap::feature_offset(k)) = map.feature(k - 5) + Vec2(0.1, -0.05 * k);
+  }
+  for (Eigen::Index k = 8; k < 10; ++k) map.x().segment<2>(GaussianMap::feature_offset(k)) = Vec2(10.0 * k, 30.0);
+  GaussianMap expected = map;
+  const auto anything = [](Eigen::Index, Eigen::Index) { return true; };
+  const auto merged = merge_duplicate_features(map, 1.0, 9.21, 0.0, anything);
+  ASSERT_EQ(merged.size(), 3u);
+  for (Eigen::Index k = 0; k < 3; ++k) {
+    EXPECT_EQ(merged[static_cast<std::size_t>(k)], std::make_pair(std::int64_t{105 + k}, std::int64_t{100 + k}));
+    ASSERT_LE(feature_difference_distance_sq(expected, k, k + 5), 9.21);
+    ASSERT_TRUE(impose_equal_features(expected, k, k + 5));
+  }
+  expected.remove_features({5, 6, 7});
+  EXPECT_EQ(map.ids(), expected.ids());
+  EXPECT_TRUE((map.x().array() == expected.x().array()).all());
+  EXPECT_TRUE((map.P().array() == expected.P().array()).all());
+}
+
 // join_feature_sigma in the merge's test: 0.4 m apart with sigma 0.05 m each is D^2 = 32, no
 // merge; with an independent 0.1 m more on each feature S = 2 (0.05^2 + 0.1^2) I, D^2 = 6.4.
 TEST(FeatureMerging, FeatureSigmaWidensTheTestAndNotTheUpdate) {
