@@ -34,7 +34,7 @@ Eigen::MatrixXd columns2(const Matrix& P, Index c, Current current) {
   return columns;
 }
 
-Mat2 difference_covariance(const GaussianMap& map, Index a, Index b, Current current = Current::Both) {
+Mat2 difference_covariance(const GaussianMap& map, Index a, Index b, Current current) {
   const auto P = map.P();
   const Index oa = GaussianMap::feature_offset(a), ob = GaussianMap::feature_offset(b);
   const Mat2 cross = block2(P, oa, ob, current);

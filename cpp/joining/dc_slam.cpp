@@ -86,7 +86,8 @@ GaussianMap without_past_poses(const GaussianMap& map) {
 
 }  // namespace
 
-DCSlam::DCSlam(const SlamConfig& config) : config_(config) {
+DCSlam::DCSlam(const SlamConfig& config)
+    : config_(config), estimate_threads_(estimate_thread_count(config.estimate_threads)) {
   config_.validate();
   local_ = std::make_unique<EkfSlam>(config_);
   if (config_.threaded_joins) worker_ = std::thread([this] { worker_loop(); });
@@ -733,7 +734,7 @@ TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settle
   const Node& right = *node.right->node;
   const std::unique_ptr<DecidingJoin> join = make_join(first, second, left, right, node.index);
   try {
-    join->associate(estimate_thread_count(config_.estimate_threads));
+    join->associate(estimate_threads_);
     join->finish();
   } catch (const std::exception& error) {
     // The real join fails the same way when it runs, and rolls the filter back then.
@@ -814,7 +815,7 @@ DCSlam::FoldState DCSlam::fold(FoldState state, const std::vector<FoldInput>& in
     auto join = std::make_shared<DecidingJoin>(input.map, std::move(state.joined), std::move(make),
                                                weak_pairings(!last), /*spans_many_maps=*/true);
     // At most the inputs and the result are alive.
-    run_fold_join(*join, inputs, position, associate_only, estimate_thread_count(config_.estimate_threads));
+    run_fold_join(*join, inputs, position, associate_only, estimate_threads_);
     JoinEvent event;
     event.index = static_cast<int>(position);
     event.step_created = event.step_finished = steps_;
@@ -879,7 +880,7 @@ void DCSlam::take_fold_join(FoldState& state, DecidingJoin& join, const std::vec
 void DCSlam::make_last_fold_join(FoldState& state, const std::vector<FoldInput>& inputs) const {
   const std::shared_ptr<DecidingJoin> join = std::move(state.last_join);
   const std::size_t position = inputs.size() - 1;
-  run_fold_join(*join, inputs, position, /*associate_only=*/false, estimate_thread_count(config_.estimate_threads));
+  run_fold_join(*join, inputs, position, /*associate_only=*/false, estimate_threads_);
   take_fold_join(state, *join, inputs, position);
 }
 
@@ -907,7 +908,6 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
   // The versions are carried through side by side (estimate_threads), each fold on its own
   // maps; a batch of as many as there are threads at a time, so that no more folds' maps are
   // alive at once than run at once (one and the best so far with a single thread).
-  const int threads = estimate_thread_count(config_.estimate_threads);
   std::vector<int> compared{0};
   const int versions = static_cast<int>(alternative->versions.size());
   if (position + 1 < inputs.size()) {
@@ -920,7 +920,7 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
         next_pairs[static_cast<std::size_t>(version)] = next.joins[position].pairing.pairs.size();
       });
     }
-    run_tasks(tasks, threads);
+    run_tasks(tasks, estimate_threads_);
     for (int version = 1; version <= versions; ++version) {
       if (next_pairs[static_cast<std::size_t>(version)] > next_pairs[0]) compared.push_back(version);
     }
@@ -930,7 +930,7 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
   }
   FoldState best;
   std::size_t best_pairs = 0;
-  const auto batch_size = static_cast<std::size_t>(threads);
+  const auto batch_size = static_cast<std::size_t>(estimate_threads_);
   for (std::size_t begin = 0; begin < compared.size(); begin += batch_size) {
     const std::size_t end = std::min(compared.size(), begin + batch_size);
     std::vector<FoldState> rests(end - begin);
@@ -941,7 +941,7 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
             fold(start_of(compared[k]), inputs, position, associations, /*comparing_versions=*/true);
       });
     }
-    run_tasks(tasks, threads);
+    run_tasks(tasks, estimate_threads_);
     for (std::size_t k = begin; k < end; ++k) {
       FoldState& rest = rests[k - begin];
       std::size_t pairs = 0;

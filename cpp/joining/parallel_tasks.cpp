@@ -4,6 +4,7 @@
 #include <atomic>
 #include <cstddef>
 #include <exception>
+#include <limits>
 #include <thread>
 
 namespace dcslam {
@@ -48,7 +49,7 @@ void run_tasks(const std::vector<std::function<void()>>& tasks, int threads) {
       }
     }
   };
-  const int helpers = claim(spare, static_cast<int>(std::min<std::size_t>(tasks.size() - 1, 1 << 20)));
+  const int helpers = claim(spare, static_cast<int>(std::min<std::size_t>(tasks.size() - 1, std::numeric_limits<int>::max())));
   std::vector<std::thread> pool;
   pool.reserve(static_cast<std::size_t>(helpers));
   for (int k = 0; k < helpers; ++k) {

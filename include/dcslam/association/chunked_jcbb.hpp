@@ -55,8 +55,9 @@ struct ChunkedJcbbResult {
 // next few measurements with them, ConditionedPairingModel::prepare()), starts a chunk's JCBB
 // (ranks its candidates), expands its search by options.work_unit, or keeps a panel of its
 // pairings (ConditionedPairingModel::keep_each_within()); the steps depend on the sizes and
-// the search alone, so the result is bitwise the same however the work is sliced. `candidates` (per measurement, features 0..n-1 with
-// n = num_features) and `model` must outlive it.
+// the search alone, so the result is bitwise the same however the work is sliced.
+// `candidates` (per measurement, features 0..n-1 with n = num_features) and `model` must
+// outlive it.
 class ChunkedJcbb : public ResumableWork<ChunkedJcbb> {
  public:
   ChunkedJcbb(const CandidateLists& candidates, const PairingModel& model, int num_features,

@@ -367,6 +367,7 @@ class DCSlam : public SlamFilter {
   void forget_estimate_aliases();
 
   SlamConfig config_;
+  const int estimate_threads_;  // config_.estimate_threads resolved (estimate_thread_count())
   std::unique_ptr<EkfSlam> local_;
   std::int64_t local_map_steps_ = 0;
   // Written by the front end's every step, read by a join worker when a join completes.
