@@ -13,7 +13,8 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 # The cases that run DCSlam with threaded_joins, by name (tests/cpp/test_dc_slam.cpp names each
 # case by its parameters: --gtest_list_tests shows them), and the two that check the three
-# schedules agree bit for bit, and estimate() on several threads: about 2 min under TSan.
+# schedules agree bit for bit, and estimate() (its fold, its joins' fill, the re-linearisation
+# pass) on several threads: about 2 min under TSan.
 THREAD_TESTS='DcSlam.ImmediateAmortizedAndThreadedAreBitwiseIdentical:DcSlam.PastPosesAreBitwiseTheSameInEveryJoinMode'
 THREAD_TESTS+=':DcSlam.AFailedJoinRollsBackInEveryMode:DcSlam.WeakJoinsDecideAlikeInEveryMode'
 THREAD_TESTS+=':LocalMapSizes/DcSlamLinear.EqualsEkfExactly/features4_threaded'
@@ -21,6 +22,7 @@ THREAD_TESTS+=':LocalMapSizes/DcSlamLinear.EqualsEkfExactly/features25_threaded'
 THREAD_TESTS+=':Modes/DcSlamAnytime.*/threaded'
 THREAD_TESTS+=':LocalMapSizes/DcSlamPastPoses.*/features4_threaded:LocalMapSizes/DcSlamPastPoses.*/features25_threaded'
 THREAD_TESTS+=':DcSlamOnlineLocalisation.*:RunTasks.*:DcSlam.EstimateIsBitwiseTheSameOnAnyNumberOfThreads'
+THREAD_TESTS+=':DcSlamTree.OnePassIsBitwiseTheSameOnAnyNumberOfThreads:MapJoining.FilledOnSeveralThreadsGivesBitwiseTheSameResult'
 
 which="${1:-all}"
 case "$which" in

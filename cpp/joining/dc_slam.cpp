@@ -734,8 +734,7 @@ TreeMap DCSlam::materialize(const FrozenNode& node, std::vector<JoinIds>& settle
   const Node& right = *node.right->node;
   const std::unique_ptr<DecidingJoin> join = make_join(first, second, left, right, node.index);
   try {
-    join->associate(estimate_threads_);
-    join->finish();
+    join->finish(estimate_threads_);
   } catch (const std::exception& error) {
     // The real join fails the same way when it runs, and rolls the filter back then.
     throw InvalidArgument("DCSlam::estimate: pending join " + std::to_string(node.index) + " (queued at step " +
@@ -853,7 +852,7 @@ void DCSlam::run_fold_join(DecidingJoin& join, const std::vector<FoldInput>& inp
                            bool associate_only, int threads) {
   try {
     join.associate(threads);
-    if (!associate_only) join.finish();
+    if (!associate_only) join.finish(threads);
   } catch (const std::exception& error) {
     throw InvalidArgument("DCSlam::estimate: the join of the stack's map " +
                           std::to_string(inputs.size() - 1 - position) + " with the maps after it failed: " +
@@ -1068,7 +1067,8 @@ Estimate DCSlam::estimate() const {
     const LeafLog open_log = seal_leaf_log(open_log_, local_->map(), local_->merged_ids());
     GaussianMap root = tree_.relinearise(spans, *compact_copy(local_->map()), open_log, final_id, *joined,
                                          join_options(0, 0), LeafModel{config_.observation, config_.sensor_offset},
-                                         config_.tree_relinearisation, kRelinearisationTolerance, &report);
+                                         config_.tree_relinearisation, kRelinearisationTolerance, estimate_threads_,
+                                         &report);
     {
       std::lock_guard<std::mutex> lock(mutex_);
       relinearisation_ = report;

@@ -102,6 +102,19 @@ void DecidingJoin::associate(int threads) {
   while (!associated()) step(kWhole);
 }
 
+void DecidingJoin::finish(int threads) {
+  associate(threads);
+  while (!done()) {
+    if (phase_ == Phase::Join) {
+      chosen_->finish(threads);
+      start_alternatives();
+    } else {
+      alternatives_.back()->finish(threads);
+      start_next_alternative();
+    }
+  }
+}
+
 std::int64_t DecidingJoin::remaining_work() const {
   switch (phase_) {
     case Phase::Choose: {

@@ -1,9 +1,12 @@
 #include "dcslam/joining/join_fill.hpp"
 
 #include <algorithm>
+#include <functional>
 #include <utility>
+#include <vector>
 
 #include "dcslam/joining/join_cost.hpp"
+#include "dcslam/joining/parallel_tasks.hpp"
 
 namespace dcslam {
 
@@ -22,8 +25,8 @@ JoinFill::JoinFill(const GaussianMap& first, const GaussianMap& second, const Jo
       correction_(std::move(correction)),
       result_(std::move(result)) {}
 
-void JoinFill::write_moved_second_block(Index row_begin, Index rows, Index col_begin,
-                                       Index width, Index out_row, Index out_col) {
+void JoinFill::write_moved_second_block(Index row_begin, Index rows, Index col_begin, Index width,
+                                        Index out_row, Index out_col, Eigen::MatrixXd& scratch) {
   const auto P2 = second_.P();
   const Index features_end = layout_.second_kept_features_end();
   // J_2 mixes the x and y of a pair: where the block splits one, it is gathered widened by
@@ -34,17 +37,17 @@ void JoinFill::write_moved_second_block(Index row_begin, Index rows, Index col_b
   };
   const auto [row0, row1] = widened(row_begin, rows);
   const auto [col0, col1] = widened(col_begin, width);
-  scratch_.resize(row1 - row0, col1 - col0);
+  scratch.resize(row1 - row0, col1 - col0);
   for (Index b = col0; b < col1; ++b) {
     const Index src_col = layout_.second_kept_rows[static_cast<std::size_t>(b)];
     for (Index a = row0; a < row1; ++a) {
-      scratch_(a - row0, b - col0) = P2(layout_.second_kept_rows[static_cast<std::size_t>(a)], src_col);
+      scratch(a - row0, b - col0) = P2(layout_.second_kept_rows[static_cast<std::size_t>(a)], src_col);
     }
   }
-  rotate_second_rows(scratch_, rotation_, row0, features_end);
-  rotate_second_columns(scratch_, rotation_, col0, features_end);
+  rotate_second_rows(scratch, rotation_, row0, features_end);
+  rotate_second_columns(scratch, rotation_, col0, features_end);
   result_.P().block(out_row, out_col, rows, width) =
-      scratch_.block(row_begin - row0, col_begin - col0, rows, width);
+      scratch.block(row_begin - row0, col_begin - col0, rows, width);
 }
 
 void JoinFill::write_first_block(Index row_begin, Index rows, Index col_begin, Index width,
@@ -63,31 +66,33 @@ void JoinFill::write_first_block(Index row_begin, Index rows, Index col_begin, I
 // is computed as base + L N', then mirrored into the rows above the diagonal of later
 // columns. The base is a block of P1 or of J_2 P2 J_2' where rows and columns come from the
 // same map, 0 across the maps.
-std::int64_t JoinFill::fill_next_tile() {
-  const Index out_dim = result_.dim();
+Index JoinFill::block_width(Index col) const {
+  const JoinLayout::Segment& columns = layout_.segment_of(col);
+  return std::min(block_columns_, columns.out_begin + columns.size - col);
+}
+
+Index JoinFill::tile_rows(Index width) const {
+  return join_cost::fill_tile_rows(work_unit_, width, static_cast<Index>(correction_.right_first.cols()) - 3);
+}
+
+// The rows above the diagonal are the earlier blocks' transposed. Written with the block,
+// rather than by each earlier block into every later column: a fresh result's pages are then
+// first touched a block at a time, not all in one unit of work. In square tiles: one long
+// transposed copy runs at a fraction of the speed.
+void JoinFill::mirror_above(Index col, Index width) {
+  auto out = result_.P();
+  for (Index c0 = 0; c0 < col; c0 += block_columns_) {
+    const Index tile_width = std::min(block_columns_, col - c0);
+    out.block(c0, col, tile_width, width) = out.block(col, c0, width, tile_width).transpose();
+  }
+}
+
+std::int64_t JoinFill::write_tile(Index col, Index width, Index row0, Index row1, Eigen::MatrixXd& scratch) {
   const Index k = static_cast<Index>(correction_.right_first.cols()) - 3;
-  const Index col = next_out_col_;
   auto out = result_.P();
   const JoinLayout::Segment& columns = layout_.segment_of(col);
-  const Index width = std::min(block_columns_, columns.out_begin + columns.size - col);
   const Index local_col = columns.local_begin + (col - columns.out_begin);
-  // The block is written a tile of rows at a time, rows from the diagonal down: the tiles
-  // keep the block's width (so the GEMM streams the low-rank factor once per block, as
-  // unsliced) and bound a unit of work when r is large.
-  const Index row0 = next_fill_row_ > col ? next_fill_row_ : col;
-  const Index tile = join_cost::fill_tile_rows(work_unit_, width, k);
-  const Index row1 = std::min(out_dim, row0 + tile);
   const Index rows = row1 - row0;
-  if (row0 == col && col > 0) {
-    // The rows above the diagonal are the earlier blocks' transposed. Written here, with the
-    // block, rather than by each earlier block into every later column: a fresh result's pages
-    // are then first touched a block at a time, not all in one unit of work.
-    // In square tiles: one long transposed copy runs at a fraction of the speed.
-    for (Index c0 = 0; c0 < col; c0 += block_columns_) {
-      const Index tile_width = std::min(block_columns_, col - c0);
-      out.block(c0, col, tile_width, width) = out.block(col, c0, width, tile_width).transpose();
-    }
-  }
   for (const JoinLayout::Segment& segment : layout_.segments) {
     const Index begin = std::max(row0, segment.out_begin);
     const Index end = std::min(row1, segment.out_begin + segment.size);
@@ -96,7 +101,7 @@ std::int64_t JoinFill::fill_next_tile() {
     if (segment.second != columns.second) {
       out.block(begin, col, end - begin, width).setZero();
     } else if (segment.second) {
-      write_moved_second_block(local_row, end - begin, local_col, width, begin, col);
+      write_moved_second_block(local_row, end - begin, local_col, width, begin, col, scratch);
     } else {
       write_first_block(local_row, end - begin, local_col, width, begin, col);
     }
@@ -117,12 +122,60 @@ std::int64_t JoinFill::fill_next_tile() {
     auto diagonal = out.block(col, col, width, width);
     diagonal.triangularView<Eigen::StrictlyUpper>() = diagonal.transpose();
   }
+  return static_cast<std::int64_t>(rows) * width * element_cost_;
+}
+
+std::int64_t JoinFill::fill_next_tile() {
+  const Index out_dim = result_.dim();
+  const Index col = next_out_col_;
+  const Index width = block_width(col);
+  // The block is written a tile of rows at a time, rows from the diagonal down: the tiles
+  // keep the block's width (so the GEMM streams the low-rank factor once per block, as
+  // unsliced) and bound a unit of work when r is large.
+  const Index row0 = next_fill_row_ > col ? next_fill_row_ : col;
+  const Index row1 = std::min(out_dim, row0 + tile_rows(width));
+  if (row0 == col && col > 0) mirror_above(col, width);
+  const std::int64_t work = write_tile(col, width, row0, row1, scratch_);
   next_fill_row_ = row1;
   if (row1 == out_dim) {
     next_out_col_ += width;
     next_fill_row_ = 0;
   }
-  return static_cast<std::int64_t>(rows) * width * element_cost_;
+  return work;
+}
+
+// Each column block's lower part depends on the inputs alone, and its tiles are those
+// fill_next_tile() writes (the same products of the same sizes), so the blocks run side by
+// side and each entry is the one the tile-by-tile fill computes; the mirrors, which read the
+// earlier blocks' lower parts, follow once every block is written.
+std::int64_t JoinFill::fill_rest(int threads) {
+  std::int64_t work = 0;
+  while (!done() && next_fill_row_ != 0) work += fill_next_tile();
+  const Index out_dim = result_.dim();
+  std::vector<Index> starts;
+  for (Index col = next_out_col_; col < out_dim; col += block_width(col)) starts.push_back(col);
+  std::vector<std::int64_t> block_work(starts.size(), 0);
+  std::vector<std::function<void()>> tasks;
+  for (std::size_t b = 0; b < starts.size(); ++b) {
+    tasks.emplace_back([&, b] {
+      const Index col = starts[b];
+      const Index width = block_width(col);
+      const Index tile = tile_rows(width);
+      Eigen::MatrixXd scratch;
+      for (Index row0 = col; row0 < out_dim; row0 += tile) {
+        block_work[b] += write_tile(col, width, row0, std::min(out_dim, row0 + tile), scratch);
+      }
+    });
+  }
+  run_tasks(tasks, threads);
+  tasks.clear();
+  for (const Index col : starts) {
+    if (col > 0) tasks.emplace_back([this, col] { mirror_above(col, block_width(col)); });
+  }
+  run_tasks(tasks, threads);
+  for (const std::int64_t block : block_work) work += block;
+  next_out_col_ = out_dim;
+  return work;
 }
 
 }  // namespace dcslam

@@ -11,6 +11,7 @@
 
 #include "dcslam/association/feature_merging.hpp"
 #include "dcslam/core/geometry.hpp"
+#include "dcslam/joining/parallel_tasks.hpp"
 
 namespace dcslam {
 
@@ -192,34 +193,12 @@ bool fit_base(const GaussianMap& local, const GlobalEstimate& global, Vec3& base
 // linearised there stays there (the linear case stays exact, a two-map tree at its join).
 class BoundaryFit {
  public:
-  BoundaryFit(const std::vector<const GaussianMap*>& maps, const GlobalEstimate& point) {
-    for (const GaussianMap* map : maps) {
-      // Rows measured: the robot (the open map's too) and the features the map holds; the
-      // others (tentative features dropped later) are marginalised out of the local map.
-      std::vector<Index> rows = {0, 1, 2};
-      std::vector<Vec2> features;
-      for (Index j = 0; j < map->num_features(); ++j) {
-        const Vec2* global = point.feature(map->ids()[static_cast<std::size_t>(j)]);
-        if (global == nullptr) continue;
-        rows.push_back(GaussianMap::feature_offset(j));
-        rows.push_back(GaussianMap::feature_offset(j) + 1);
-        features.push_back(*global);
-      }
-      const auto n = static_cast<Index>(rows.size());
-      Eigen::MatrixXd covariance(n, n);
-      Eigen::VectorXd mean(n);
-      for (Index a = 0; a < n; ++a) {
-        mean(a) = map->x()(rows[static_cast<std::size_t>(a)]);
-        for (Index b = 0; b < n; ++b) covariance(a, b) = map->P()(rows[static_cast<std::size_t>(a)], rows[static_cast<std::size_t>(b)]);
-      }
-      // A zero variance (a known heading, a map just opened) is a constraint: a tiny floor
-      // keeps the information finite and weights it as one.
-      const double floor = 1e-12 * std::max(1.0, covariance.diagonal().cwiseAbs().maxCoeff());
-      covariance.diagonal().array() += floor;
-      information_.push_back(covariance.ldlt().solve(Eigen::MatrixXd::Identity(n, n)));
-      means_.push_back(std::move(mean));
-      features_.push_back(std::move(features));
-    }
+  // Each local map's information matrix on up to `threads` threads.
+  BoundaryFit(const std::vector<const GaussianMap*>& maps, const GlobalEstimate& point, int threads)
+      : information_(maps.size()), means_(maps.size()), features_(maps.size()) {
+    std::vector<std::function<void()>> tasks;
+    for (std::size_t k = 0; k < maps.size(); ++k) tasks.emplace_back([&, k] { add_map(k, *maps[k], point); });
+    run_tasks(tasks, threads);
   }
 
   // Up to `steps` Gauss–Newton steps from `boundaries` (B_1..B_L), the open map's robot fixed.
@@ -280,6 +259,34 @@ class BoundaryFit {
   }
 
  private:
+  // Local map k's rows measured: the robot (the open map's too) and the features the map
+  // holds; the others (tentative features dropped later) are marginalised out of the local map.
+  void add_map(std::size_t k, const GaussianMap& map, const GlobalEstimate& point) {
+    std::vector<Index> rows = {0, 1, 2};
+    std::vector<Vec2> features;
+    for (Index j = 0; j < map.num_features(); ++j) {
+      const Vec2* global = point.feature(map.ids()[static_cast<std::size_t>(j)]);
+      if (global == nullptr) continue;
+      rows.push_back(GaussianMap::feature_offset(j));
+      rows.push_back(GaussianMap::feature_offset(j) + 1);
+      features.push_back(*global);
+    }
+    const auto n = static_cast<Index>(rows.size());
+    Eigen::MatrixXd covariance(n, n);
+    Eigen::VectorXd mean(n);
+    for (Index a = 0; a < n; ++a) {
+      mean(a) = map.x()(rows[static_cast<std::size_t>(a)]);
+      for (Index b = 0; b < n; ++b) covariance(a, b) = map.P()(rows[static_cast<std::size_t>(a)], rows[static_cast<std::size_t>(b)]);
+    }
+    // A zero variance (a known heading, a map just opened) is a constraint: a tiny floor
+    // keeps the information finite and weights it as one.
+    const double floor = 1e-12 * std::max(1.0, covariance.diagonal().cwiseAbs().maxCoeff());
+    covariance.diagonal().array() += floor;
+    information_[k] = covariance.ldlt().solve(Eigen::MatrixXd::Identity(n, n));
+    means_[k] = std::move(mean);
+    features_[k] = std::move(features);
+  }
+
   std::vector<Eigen::MatrixXd> information_;
   std::vector<Eigen::VectorXd> means_;
   std::vector<std::vector<Vec2>> features_;
@@ -304,23 +311,33 @@ class LeafRebuilder {
     for (const LeafLog* log : logs_) weights_.push_back(leaf_weights(*log));
   }
 
-  // Fits every leaf's intermediate poses at `point`; returns the batch objective there.
-  double fit(const GlobalEstimate& point) {
-    double total = 0.0;
+  // Fits every leaf's intermediate poses at `point`, the leaves side by side on up to `threads`
+  // threads; returns the batch objective there, summed in the leaves' order whatever the threads.
+  double fit(const GlobalEstimate& point, int threads) {
+    std::vector<double> objectives(maps_.size());
+    std::vector<std::function<void()>> tasks;
     for (std::size_t k = 0; k < maps_.size(); ++k) {
-      total += fit_leaf_poses(*logs_[k], weights_[k], leaf_point(k, point), model_, poses_[k]);
+      tasks.emplace_back([&, k] {
+        objectives[k] = fit_leaf_poses(*logs_[k], weights_[k], leaf_point(k, point), model_, poses_[k]);
+      });
     }
+    run_tasks(tasks, threads);
+    double total = 0.0;
+    for (const double objective : objectives) total += objective;
     return total;
   }
 
   // Every leaf rebuilt at `point`, with the poses of the last fit() (at `point`).
-  std::vector<std::shared_ptr<const GaussianMap>> rebuild(const GlobalEstimate& point) const {
-    std::vector<std::shared_ptr<const GaussianMap>> rebuilt;
-    rebuilt.reserve(maps_.size());
+  std::vector<std::shared_ptr<const GaussianMap>> rebuild(const GlobalEstimate& point, int threads) const {
+    std::vector<std::shared_ptr<const GaussianMap>> rebuilt(maps_.size());
+    std::vector<std::function<void()>> tasks;
     for (std::size_t k = 0; k < maps_.size(); ++k) {
-      rebuilt.push_back(std::make_shared<const GaussianMap>(
-          rebuild_leaf(*maps_[k], *logs_[k], leaf_point(k, point), poses_[k], model_)));
+      tasks.emplace_back([&, k] {
+        rebuilt[k] = std::make_shared<const GaussianMap>(
+            rebuild_leaf(*maps_[k], *logs_[k], leaf_point(k, point), poses_[k], model_));
+      });
     }
+    run_tasks(tasks, threads);
     return rebuilt;
   }
 
@@ -351,21 +368,29 @@ class LeafRebuilder {
 // One pass over the tree: every join redone from the leaves, ⊕ linearised at `point`.
 class TreePass {
  public:
+  // The joins of disjoint subtrees are independent: they run side by side on up to `threads`
+  // threads (estimate_threads), each on its own maps, with the same results on any number.
   TreePass(const JoinTree& tree, const std::vector<BuiltNode>& leaves,
            std::shared_ptr<const GaussianMap> current, const JoinOptions& options,
-           const GlobalEstimate& point)
-      : tree_(tree), leaves_(leaves), current_(std::move(current)), options_(options), point_(point) {}
+           const GlobalEstimate& point, int threads)
+      : tree_(tree), leaves_(leaves), current_(std::move(current)), options_(options), point_(point),
+        threads_(threads) {}
 
-  // DCSlam::estimate()'s fold: each node of the stack, top first, joined with everything after it.
+  // DCSlam::estimate()'s fold: each node of the stack, top first, joined with everything after
+  // it. The stack's nodes are built first, side by side; then the fold's joins, in order.
   GaussianMap fold(const std::vector<TreeSpan>& stack) const {
     if (stack.empty()) return *current_;
+    std::vector<BuiltNode> built(stack.size());
+    std::vector<std::function<void()>> tasks;
+    for (std::size_t k = 0; k < stack.size(); ++k) tasks.emplace_back([&, k] { built[k] = build(stack[k]); });
+    run_tasks(tasks, threads_);
     std::shared_ptr<const GaussianMap> joined = current_;
-    for (auto node = stack.rbegin();; ++node) {
-      const BuiltNode first = build(*node);
-      MapJoin join(first.map, joined, options_for(*node, tree_.num_leaves(), *first.map, *joined));
-      join.finish();
+    for (std::size_t k = stack.size() - 1;; --k) {
+      const std::shared_ptr<const GaussianMap> first = std::move(built[k].map);
+      MapJoin join(first, joined, options_for(stack[k], tree_.num_leaves(), *first, *joined));
+      join.finish(threads_);
       GaussianMap result = join.take_result();
-      if (node + 1 == stack.rend()) return result;
+      if (k == 0) return result;
       joined = std::make_shared<const GaussianMap>(std::move(result));
     }
   }
@@ -376,12 +401,12 @@ class TreePass {
     const std::int64_t left_count = tree_.left_leaves(node);
     const TreeSpan left{node.first_leaf, left_count};
     const TreeSpan right{node.first_leaf + left_count, node.leaves - left_count};
-    const BuiltNode first = build(left);
-    const BuiltNode second = build(right);
+    BuiltNode first, second;
+    run_tasks({[&] { first = build(left); }, [&] { second = build(right); }}, threads_);
     MapJoin join(first.map, second.map, options_for(left, right.last_leaf(), *first.map, *second.map),
                  last_chance(*first.map, first.tentative, node.first_leaf, node.last_leaf()),
                  last_chance(*second.map, second.tentative, node.first_leaf, node.last_leaf()));
-    join.finish();
+    join.finish(threads_);
     BuiltNode built;
     built.map = std::make_shared<const GaussianMap>(join.take_result());
     built.tentative = joined_tentative(first.tentative, second.tentative, join, node.first_leaf, node.last_leaf());
@@ -438,6 +463,7 @@ class TreePass {
   std::shared_ptr<const GaussianMap> current_;
   JoinOptions options_;
   const GlobalEstimate& point_;
+  int threads_;
 };
 
 }  // namespace
@@ -445,7 +471,8 @@ class TreePass {
 GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const GaussianMap& current,
                                   const LeafLog& open_log, const std::function<std::int64_t(std::int64_t)>& final_id,
                                   const GaussianMap& start, const JoinOptions& options, const LeafModel& model,
-                                  int max_passes, double tolerance, RelinearisationReport* report) const {
+                                  int max_passes, double tolerance, int threads,
+                                  RelinearisationReport* report) const {
   if (max_passes < 1) throw std::logic_error("JoinTree::relinearise: max_passes must be >= 1");
   const auto relabel = [&](std::int64_t id) {
     const std::int64_t resolved = final_id(id);
@@ -484,7 +511,7 @@ GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const Gaus
     boundaries.push_back(boundary);
     boundary_ids.push_back(leaf(k - 1).robot_id);
   }
-  BoundaryFit(maps, point).solve(boundaries, start.robot(), kBoundarySteps);
+  BoundaryFit(maps, point, threads).solve(boundaries, start.robot(), kBoundarySteps);
   // A heading no noise has touched (zero variance in every local map so far: odometry with a
   // known heading) is known exactly, and the covariance the pass computes depends on it to
   // first order: it is set exactly rather than fitted (to ~1e-10 rad under the fit's floor).
@@ -506,18 +533,18 @@ GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const Gaus
   LeafRebuilder rebuilder(maps, std::move(logs), std::move(robot_ids), model);
 
   RelinearisationReport done;
-  double objective = rebuilder.fit(point);
+  double objective = rebuilder.fit(point, threads);
   done.first_objective = objective;
   GaussianMap result;
   for (int pass = 0; pass < max_passes; ++pass) {
-    const std::vector<std::shared_ptr<const GaussianMap>> rebuilt = rebuilder.rebuild(point);
+    const std::vector<std::shared_ptr<const GaussianMap>> rebuilt = rebuilder.rebuild(point, threads);
     std::vector<BuiltNode> pass_leaves;
     pass_leaves.reserve(leaves.size());
     for (std::size_t k = 0; k < leaves.size(); ++k) {
       pass_leaves.push_back(BuiltNode{with_repeated_ids_merged(rebuilt[k]), leaves[k].tentative});
     }
     GaussianMap next =
-        TreePass(*this, pass_leaves, with_repeated_ids_merged(rebuilt.back()), options, point).fold(stack);
+        TreePass(*this, pass_leaves, with_repeated_ids_merged(rebuilt.back()), options, point, threads).fold(stack);
     // The line search: the Gauss–Newton step is taken whole where it lowers the batch
     // objective (always, near the optimum), else halved until it does. Each try refits the
     // intermediate poses, O(steps + measurements), next to the pass's O(n^2) joins.
@@ -526,7 +553,7 @@ GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const Gaus
     double alpha = 1.0;
     for (int halving = 0; halving <= kLineSearchHalvings && !lowered; ++halving) {
       GlobalEstimate candidate = point.toward(proposed, alpha);
-      const double value = rebuilder.fit(candidate);
+      const double value = rebuilder.fit(candidate, threads);
       if (value <= objective * (1.0 + 1e-12)) {
         lowered = true;
         objective = value;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <limits>
 #include <stdexcept>
 #include <string>
 
@@ -192,6 +193,21 @@ std::int64_t MapJoin::step(std::int64_t budget) {
   }
   report_.work_units += spent;
   return spent;
+}
+
+std::int64_t MapJoin::finish(int threads) {
+  std::int64_t spent = 0;
+  while (!done() && !(phase_ == Phase::Fill && threads > 1)) {
+    spent += step(std::numeric_limits<std::int64_t>::max() - spent);
+  }
+  if (done()) return spent;
+  ScopedTimer timer(report_.seconds_total);
+  const std::int64_t filled = fill_->fill_rest(threads);
+  report_.work_units += filled;
+  result_ = fill_->take_result();
+  release_inputs();
+  phase_ = Phase::Done;
+  return spent + filled;
 }
 
 GaussianMap MapJoin::take_result() {

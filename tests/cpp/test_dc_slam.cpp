@@ -539,6 +539,31 @@ TEST(DcSlam, EstimateIsBitwiseTheSameOnAnyNumberOfThreads) {
   }
 }
 
+// The re-linearised tree's pass on several threads (its leaves' fits and rebuilds, the joins
+// of disjoint subtrees and the fill of each join's result side by side) gives bitwise the
+// pass made on one: small_loop_laps without ids, one and three threads.
+TEST(DcSlamTree, OnePassIsBitwiseTheSameOnAnyNumberOfThreads) {
+  const Simulation sim = small_loop_laps();
+  std::vector<Estimate> results;
+  for (int threads : {1, 3}) {
+    SlamConfig config;
+    config.association = Association::Jcbb;
+    config.join_association = JoinAssociation::Rjc;
+    config.tree_relinearisation = 1;
+    config.estimate_threads = threads;
+    DCSlam dc(config);
+    run_without_ids(dc, sim);
+    results.push_back(dc.estimate());
+    EXPECT_EQ(dc.stats().counters.at("relinearisation_passes"), 1.0);
+    EXPECT_GT(dc.joins().size(), 8u);
+  }
+  EXPECT_EQ(results[1].landmark_ids, results[0].landmark_ids);
+  EXPECT_TRUE((results[1].robot.array() == results[0].robot.array()).all());
+  EXPECT_TRUE((results[1].landmarks.array() == results[0].landmarks.array()).all());
+  EXPECT_TRUE(results[1].covariance.size() == results[0].covariance.size() &&
+              (results[1].covariance.array() == results[0].covariance.array()).all());
+}
+
 // estimate() while a join is pending computes that join on the side, and a later estimate()
 // takes it as computed while the join is still pending (DCSlam::MaterializedJoin): called at
 // every step, amortized and threaded runs give bitwise the estimate and resolved ids of the

@@ -1,5 +1,9 @@
+#include <cstdint>
+#include <memory>
 #include <random>
 #include <set>
+#include <utility>
+#include <vector>
 
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
@@ -374,16 +378,51 @@ TEST(MapJoining, ResumedInSlicesGivesBitwiseTheSameResult) {
   for (const auto& [from, to] : merged) EXPECT_EQ(from, to);  // known ids merge equal ids
 }
 
+// Two random maps of 45 and 40 features, 22 of them with ids in both.
+std::pair<std::shared_ptr<const GaussianMap>, std::shared_ptr<const GaussianMap>> maps_sharing_22_features(
+    std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::vector<std::int64_t> ids1, ids2;
+  for (int i = 0; i < 45; ++i) ids1.push_back(i);
+  for (int j = 0; j < 40; ++j) ids2.push_back(j < 22 ? 2 * j : 500 + j);
+  auto m1 = std::make_shared<const GaussianMap>(random_map(rng, ids1));
+  auto m2 = std::make_shared<const GaussianMap>(random_map(rng, ids2));
+  return {std::move(m1), std::move(m2)};
+}
+
+// The fill's column blocks side by side (MapJoin::finish(threads), as estimate()'s joins are
+// made): the result and the work counted are bitwise those of the tile-by-tile fill, from the
+// start and from the middle of a column block.
+TEST(MapJoining, FilledOnSeveralThreadsGivesBitwiseTheSameResult) {
+  const auto [m1, m2] = maps_sharing_22_features(7);
+  JoinOptions options;
+  options.block_columns = 8;
+  options.work_unit = 256;
+  MapJoin one_thread(m1, m2, options);
+  int steps = 0;
+  while (!one_thread.done()) {
+    one_thread.advance(1);
+    ++steps;
+  }
+  const GaussianMap expected = one_thread.take_result();
+  // The last steps are fill tiles: stopping five short leaves a column block half written.
+  for (const int taken : {0, steps - 5}) {
+    MapJoin threaded(m1, m2, options);
+    for (int step = 0; step < taken; ++step) threaded.advance(1);
+    threaded.finish(3);
+    EXPECT_EQ(threaded.report().work_units, one_thread.report().work_units) << taken;
+    const GaussianMap result = threaded.take_result();
+    EXPECT_EQ(result.ids(), expected.ids());
+    EXPECT_TRUE((result.x().array() == expected.x().array()).all()) << taken;
+    EXPECT_TRUE((result.P().array() == expected.P().array()).all()) << taken;
+  }
+}
+
 // Tiny work units and panels: the fill in row tiles, the Cholesky factor in panels of 4, P H'
 // 16 pairs at a time, the assembly and the solve a few rows at a time. Still the textbook
 // join, and bitwise the same however the units are spread over calls.
 TEST(MapJoining, SmallWorkUnitsGiveTheTextbookJoin) {
-  std::mt19937_64 rng(11);
-  std::vector<std::int64_t> ids1, ids2;
-  for (int i = 0; i < 45; ++i) ids1.push_back(i);
-  for (int j = 0; j < 40; ++j) ids2.push_back(j < 22 ? 2 * j : 500 + j);  // 22 shared
-  const auto m1 = std::make_shared<const GaussianMap>(random_map(rng, ids1));
-  const auto m2 = std::make_shared<const GaussianMap>(random_map(rng, ids2));
+  const auto [m1, m2] = maps_sharing_22_features(11);
   JoinOptions options;
   options.block_columns = 4;
   options.work_unit = 64;

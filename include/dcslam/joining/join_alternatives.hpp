@@ -116,6 +116,10 @@ class DecidingJoin : public ResumableWork<DecidingJoin> {
   // `threads` > 1: the candidates' associations run side by side (run_tasks()), each the same
   // steps as one after the other, so the choice and the join are the same.
   void associate(int threads = 1);
+  using ResumableWork<DecidingJoin>::finish;
+  // Runs to completion as finish() does, with associate(threads) and each join's fill on up to
+  // `threads` threads (MapJoin::finish(threads)): the same choice, result and work.
+  void finish(int threads);
   std::int64_t remaining_work() const;
 
   // Valid once done(). The versions joined:

@@ -80,11 +80,14 @@ class JoinTree {
   // their own), so the pairs are those the run decided, each made at the lowest join where
   // its two features meet. `options` gives the constraint update's settings; association,
   // linearisation and the past poses are set here. The result keeps every local-map boundary
-  // as a past pose (the linearisation points need them).
+  // as a past pose (the linearisation points need them). The leaves' fits and rebuilds and the
+  // joins of disjoint subtrees run side by side on up to `threads` threads (>= 1), with the
+  // same result on any number.
   GaussianMap relinearise(const std::vector<TreeSpan>& stack, const GaussianMap& current, const LeafLog& open_log,
                           const std::function<std::int64_t(std::int64_t)>& final_id,
                           const GaussianMap& start, const JoinOptions& options, const LeafModel& model,
-                          int max_passes, double tolerance, RelinearisationReport* report = nullptr) const;
+                          int max_passes, double tolerance, int threads,
+                          RelinearisationReport* report = nullptr) const;
 
  private:
   std::vector<TreeLeaf> leaves_;

@@ -57,6 +57,10 @@ class MapJoin : public ResumableWork<MapJoin> {
   // `budget`.
   std::int64_t step(std::int64_t budget);
   bool done() const { return phase_ == Phase::Done; }
+  using ResumableWork<MapJoin>::finish;
+  // finish(), with the result's column blocks filled side by side on up to `threads` threads:
+  // the same result and work (for a join made whole, as estimate()'s are, not amortized).
+  std::int64_t finish(int threads);
   // Exact once the constraints are linearised, an estimate before (an upper bound on the
   // re-linearisation steps).
   std::int64_t remaining_work() const;
