@@ -52,7 +52,7 @@ if [[ "$which" == thread || "$which" == all ]]; then
   IFS=: read -ra patterns <<<"$THREAD_TESTS"
   for pattern in "${patterns[@]}"; do
     if ! build/tsan/tests/cpp/dcslam_thread_tests --gtest_list_tests --gtest_filter="$pattern" | grep -q '^  '; then
-      echo "run_sanitizers: no test is named '$pattern' (tests/cpp/test_dc_slam.cpp)" >&2
+      echo "run_sanitizers: no test is named '$pattern' (tests/cpp/test_dc_slam.cpp, test_map_joining.cpp)" >&2
       exit 1
     fi
   done
