@@ -209,7 +209,9 @@ class SlamConfig:
         estimate_threads: D&C: threads ``estimate()`` may use for the parts of its final fold
             that do not depend on each other (the associations of a join's candidate
             versions, the rest of the fold carried through each version of a weak fold
-            join); the estimate is bitwise the same for every count. 0 (default): every
+            join, each join's fill a column block per thread) and of the re-linearisation
+            passes (``tree_relinearisation``: the leaves' fits and rebuilds, the joins of
+            disjoint subtrees); the estimate is bitwise the same for every count. 0 (default): every
             hardware thread; 1: the calling thread only (one core per process, say, when
             runs are spread over processes).
         keep_local_map_poses: D&C keeps the robot pose at every local-map boundary in the

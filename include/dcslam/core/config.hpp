@@ -170,7 +170,9 @@ struct SlamConfig {
   bool threaded_joins = false;
   // D&C: threads that estimate() may use for the parts of its fold that do not depend on each
   // other (the associations of a join's candidate versions, the rest of the fold carried
-  // through each version of a weak fold join); bitwise the same estimate for every count.
+  // through each version of a weak fold join, each join's fill a column block per thread) and
+  // of the re-linearisation passes (the leaves' fits and rebuilds, the joins of disjoint
+  // subtrees); bitwise the same estimate for every count.
   // 0: every hardware thread; 1: the calling thread only.
   int estimate_threads = 0;
   // D&C: keep the robot pose at every local-map boundary in the joined map

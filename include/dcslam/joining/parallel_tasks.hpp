@@ -1,7 +1,9 @@
 #pragma once
 // Independent computations of estimate() run side by side (SlamConfig::estimate_threads): the
-// associations of a join's candidate versions (DecidingJoin::associate), and the rest of the
-// fold carried through each version of a weak fold join (DCSlam::decide_by_rest_of_fold).
+// associations of a join's candidate versions (DecidingJoin::associate), the rest of the fold
+// carried through each version of a weak fold join (DCSlam::decide_by_rest_of_fold), the
+// column blocks of a join's result (JoinFill::fill_rest), and the re-linearisation pass's
+// leaves and disjoint subtrees (JoinTree::relinearise).
 #include <functional>
 #include <vector>
 
