@@ -133,16 +133,23 @@ std::int64_t DecidingJoin::remaining_work() const {
   return 0;
 }
 
+// A pair an input's version keeps counts half a pair this join makes of its own. A right pair
+// dropped leaves its landmark in the map twice, which costs this join none of its own pairs
+// (each of its features pairs one of the copies); a wrong pair kept bends the map and costs
+// this join its own pairs. So a version with fewer pairs is taken when this join gains more
+// than half the pairs it drops: long_revisits seed 0's 32-leaf join that made 6 of its 25
+// pairs wrong, whose version without any pair let the next join make 17 more of its own
+// (docs/data_association.md, "Weak joins decided by the next join").
 void DecidingJoin::choose() {
   std::size_t best = 0;
-  std::int64_t best_pairs = -1;
+  std::int64_t best_score = -1;
   for (std::size_t k = 0; k < candidates_.size(); ++k) {
     const Candidate& candidate = candidates_[k];
-    const std::int64_t pairs = static_cast<std::int64_t>(candidate.join->pairs().size()) +
+    const std::int64_t score = 2 * static_cast<std::int64_t>(candidate.join->pairs().size()) +
                                version_pairs(first_, candidate.first_version) +
                                version_pairs(second_, candidate.second_version);
-    if (pairs > best_pairs) {
-      best_pairs = pairs;
+    if (score > best_score) {
+      best_score = score;
       best = k;
     }
   }

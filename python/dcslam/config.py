@@ -132,7 +132,7 @@ class SlamConfig:
             many pairs (>= 0), some of them with a feature seen once, is weak: it also builds
             its result without those pairs and, from 16 local maps, without any pair, and
             the next join (or the final fold of :meth:`~dcslam.DCSlam.estimate`) joins the
-            versions that let it make the most pairs in all, its own and the weak join's; the
+            versions that score highest, twice its own pairs plus the weak join's; the
             fold, where the rest of the run is known, counts for a weak fold join of 8 local
             maps or more the pairs of every fold join after it.
             One wrong pair between features seen once at such a join bends both maps, and

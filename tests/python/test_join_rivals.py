@@ -6,9 +6,10 @@ SlamConfig.seed = scene seed + 2000 (the third draw of benchmarks/revisit_associ
 --rjc-seeds 3). The loop closes in the final fold's last join, and there a few closing pairs
 compete with shifted alignments that collect as many chance pairs. The oracle is the
 simulator: the true final pose, and with it the robot's error and NEES (dcslam.evaluation).
-Without the rule these two runs close the loop wrong (robot 15-60 m off, NEES in the
-thousands); with it, scene seed 9 closes right and scene seed 5 stays open with a consistent
-robot.
+Without the rule these two runs close the loop wrong (robot 15-17 m off, NEES in the
+thousands); with it, scene seed 2 closes right and scene seed 5 stays open with a consistent
+robot. (Scene seed 9 closed wrong without the rule until the next join's decision between a
+weak join's versions counted its own pairs twice, 2026-12-07: it now closes right either way.)
 """
 
 import numpy as np
@@ -34,7 +35,7 @@ def loop_run(scene_seed, split=None, at_split=None, **options):
     return slam, returned, estimate, evaluation.evaluate_run(slam, estimate, returned, sim).robot
 
 
-@pytest.fixture(scope="module", params=[5, 9])
+@pytest.fixture(scope="module", params=[5, 2])
 def runs(request):
     return request.param, {margin: loop_run(request.param, join_rival_margin=margin) for margin in (None, 3)}
 
@@ -56,7 +57,7 @@ def test_with_the_rule_the_robot_is_consistent(runs):
     slam, _, _, robot = by_margin[3]
     assert robot.nees <= NEES_99
     last = slam.fold_pairings()[-1]
-    if scene_seed == 9:
+    if scene_seed == 2:
         # Closed right: the fold's versions were compared by the last join's agreed pairs, and
         # the version taken leaves that join no rival.
         assert robot.position_error < 2.0

@@ -106,8 +106,8 @@ struct SlamConfig {
   int join_merge_max_leaves = 0;
   // D&C: a join of 8 local maps or more that makes at most this many pairs is weak: it also
   // builds its result without its pairs that have a feature seen once, and the next join
-  // (or estimate()'s fold) joins whichever version lets it make more pairs in all
-  // (docs/data_association.md, "Weak joins decided by the next join"). A join of 16 local
+  // (or estimate()'s fold) joins whichever version scores higher: twice the pairs it makes
+  // itself plus the version's (docs/data_association.md, "Weak joins decided by the next join"). A join of 16 local
   // maps or more that makes more pairs keeps its result without its doubtful pairs (when they
   // are at least a tenth of its pairs), decided the same way ("Large joins' doubtful pairs,
   // decided by the next join"). 0: off, every join's pairs are final when made.

@@ -9,8 +9,8 @@
 // with a feature seen once, and none of its pairs. A large join keeps one: its pairs less the
 // doubtful ones, those with a rival candidate nearly as close. The next join sees much more of
 // the map:
-// it runs its association on each combination of its inputs' versions and joins the one that
-// makes the most pairs in all, its own and those of the versions it takes (a tie keeps the
+// it runs its association on each combination of its inputs' versions and joins the one with
+// the highest score, twice its own pairs plus those of the versions it takes (a tie keeps the
 // tighter versions: as made, then less the pairs of features seen once). Until then the ids
 // of no version are recorded.
 #include <cstdint>
