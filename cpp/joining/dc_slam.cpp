@@ -911,15 +911,11 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
   const int versions = static_cast<int>(alternative->versions.size());
   if (position + 1 < inputs.size()) {
     std::vector<std::size_t> next_pairs(static_cast<std::size_t>(versions + 1));
-    std::vector<std::function<void()>> tasks;
-    for (int version = 0; version <= versions; ++version) {
-      tasks.emplace_back([&, version] {
-        const FoldState next = fold(start_of(version), inputs, position, associations, /*comparing_versions=*/true,
-                                    position + 1);
-        next_pairs[static_cast<std::size_t>(version)] = next.joins[position].pairing.pairs.size();
-      });
-    }
-    run_tasks(tasks, estimate_threads_);
+    run_for_each(next_pairs.size(), estimate_threads_, [&](std::size_t version) {
+      const FoldState next = fold(start_of(static_cast<int>(version)), inputs, position, associations,
+                                  /*comparing_versions=*/true, position + 1);
+      next_pairs[version] = next.joins[position].pairing.pairs.size();
+    });
     for (int version = 1; version <= versions; ++version) {
       if (next_pairs[static_cast<std::size_t>(version)] > next_pairs[0]) compared.push_back(version);
     }
@@ -933,14 +929,9 @@ DCSlam::FoldState DCSlam::decide_by_rest_of_fold(FoldState state, const std::vec
   for (std::size_t begin = 0; begin < compared.size(); begin += batch_size) {
     const std::size_t end = std::min(compared.size(), begin + batch_size);
     std::vector<FoldState> rests(end - begin);
-    std::vector<std::function<void()>> tasks;
-    for (std::size_t k = begin; k < end; ++k) {
-      tasks.emplace_back([&, k] {
-        rests[k - begin] =
-            fold(start_of(compared[k]), inputs, position, associations, /*comparing_versions=*/true);
-      });
-    }
-    run_tasks(tasks, estimate_threads_);
+    run_for_each(rests.size(), estimate_threads_, [&](std::size_t k) {
+      rests[k] = fold(start_of(compared[begin + k]), inputs, position, associations, /*comparing_versions=*/true);
+    });
     for (std::size_t k = begin; k < end; ++k) {
       FoldState& rest = rests[k - begin];
       std::size_t pairs = 0;

@@ -1,7 +1,6 @@
 #include "dcslam/joining/join_alternatives.hpp"
 
 #include <algorithm>
-#include <functional>
 #include <limits>
 #include <unordered_set>
 #include <vector>
@@ -90,13 +89,10 @@ std::int64_t DecidingJoin::step(std::int64_t budget) {
 void DecidingJoin::associate(int threads) {
   constexpr std::int64_t kWhole = std::numeric_limits<std::int64_t>::max();
   if (phase_ == Phase::Choose && threads > 1 && candidates_.size() > 1) {
-    std::vector<std::function<void()>> tasks;
-    for (Candidate& candidate : candidates_) {
-      tasks.emplace_back([&join = *candidate.join] {
-        while (!join.associated()) join.step(kWhole);
-      });
-    }
-    run_tasks(tasks, threads);
+    run_for_each(candidates_.size(), threads, [&](std::size_t k) {
+      MapJoin& join = *candidates_[k].join;
+      while (!join.associated()) join.step(kWhole);
+    });
     choose();
   }
   while (!associated()) step(kWhole);
@@ -139,7 +135,7 @@ std::int64_t DecidingJoin::remaining_work() const {
 // this join its own pairs. So a version with fewer pairs is taken when this join gains more
 // than half the pairs it drops: long_revisits seed 0's 32-leaf join that made 6 of its 25
 // pairs wrong, whose version without any pair let the next join make 17 more of its own
-// (docs/data_association.md, "Weak joins decided by the next join").
+// (docs/data_association.md, "Own pairs count twice").
 void DecidingJoin::choose() {
   std::size_t best = 0;
   std::int64_t best_score = -1;

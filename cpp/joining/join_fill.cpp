@@ -1,7 +1,6 @@
 #include "dcslam/joining/join_fill.hpp"
 
 #include <algorithm>
-#include <functional>
 #include <utility>
 #include <vector>
 
@@ -155,24 +154,16 @@ std::int64_t JoinFill::fill_rest(int threads) {
   std::vector<Index> starts;
   for (Index col = next_out_col_; col < out_dim; col += block_width(col)) starts.push_back(col);
   std::vector<std::int64_t> block_work(starts.size(), 0);
-  std::vector<std::function<void()>> tasks;
-  for (std::size_t b = 0; b < starts.size(); ++b) {
-    tasks.emplace_back([&, b] {
-      const Index col = starts[b];
-      const Index width = block_width(col);
-      const Index tile = tile_rows(width);
-      Eigen::MatrixXd scratch;
-      for (Index row0 = col; row0 < out_dim; row0 += tile) {
-        block_work[b] += write_tile(col, width, row0, std::min(out_dim, row0 + tile), scratch);
-      }
-    });
-  }
-  run_tasks(tasks, threads);
-  tasks.clear();
-  for (const Index col : starts) {
-    if (col > 0) tasks.emplace_back([this, col] { mirror_above(col, block_width(col)); });
-  }
-  run_tasks(tasks, threads);
+  run_for_each(starts.size(), threads, [&](std::size_t b) {
+    const Index col = starts[b];
+    const Index width = block_width(col);
+    const Index tile = tile_rows(width);
+    Eigen::MatrixXd scratch;
+    for (Index row0 = col; row0 < out_dim; row0 += tile) {
+      block_work[b] += write_tile(col, width, row0, std::min(out_dim, row0 + tile), scratch);
+    }
+  });
+  run_for_each(starts.size(), threads, [&](std::size_t b) { mirror_above(starts[b], block_width(starts[b])); });
   for (const std::int64_t block : block_work) work += block;
   next_out_col_ = out_dim;
   return work;

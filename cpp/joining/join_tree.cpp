@@ -196,9 +196,7 @@ class BoundaryFit {
   // Each local map's information matrix on up to `threads` threads.
   BoundaryFit(const std::vector<const GaussianMap*>& maps, const GlobalEstimate& point, int threads)
       : information_(maps.size()), means_(maps.size()), features_(maps.size()) {
-    std::vector<std::function<void()>> tasks;
-    for (std::size_t k = 0; k < maps.size(); ++k) tasks.emplace_back([&, k] { add_map(k, *maps[k], point); });
-    run_tasks(tasks, threads);
+    run_for_each(maps.size(), threads, [&](std::size_t k) { add_map(k, *maps[k], point); });
   }
 
   // Up to `steps` Gauss–Newton steps from `boundaries` (B_1..B_L), the open map's robot fixed.
@@ -315,13 +313,9 @@ class LeafRebuilder {
   // threads; returns the batch objective there, summed in the leaves' order whatever the threads.
   double fit(const GlobalEstimate& point, int threads) {
     std::vector<double> objectives(maps_.size());
-    std::vector<std::function<void()>> tasks;
-    for (std::size_t k = 0; k < maps_.size(); ++k) {
-      tasks.emplace_back([&, k] {
-        objectives[k] = fit_leaf_poses(*logs_[k], weights_[k], leaf_point(k, point), model_, poses_[k]);
-      });
-    }
-    run_tasks(tasks, threads);
+    run_for_each(maps_.size(), threads, [&](std::size_t k) {
+      objectives[k] = fit_leaf_poses(*logs_[k], weights_[k], leaf_point(k, point), model_, poses_[k]);
+    });
     double total = 0.0;
     for (const double objective : objectives) total += objective;
     return total;
@@ -330,14 +324,10 @@ class LeafRebuilder {
   // Every leaf rebuilt at `point`, with the poses of the last fit() (at `point`).
   std::vector<std::shared_ptr<const GaussianMap>> rebuild(const GlobalEstimate& point, int threads) const {
     std::vector<std::shared_ptr<const GaussianMap>> rebuilt(maps_.size());
-    std::vector<std::function<void()>> tasks;
-    for (std::size_t k = 0; k < maps_.size(); ++k) {
-      tasks.emplace_back([&, k] {
-        rebuilt[k] = std::make_shared<const GaussianMap>(
-            rebuild_leaf(*maps_[k], *logs_[k], leaf_point(k, point), poses_[k], model_));
-      });
-    }
-    run_tasks(tasks, threads);
+    run_for_each(maps_.size(), threads, [&](std::size_t k) {
+      rebuilt[k] = std::make_shared<const GaussianMap>(
+          rebuild_leaf(*maps_[k], *logs_[k], leaf_point(k, point), poses_[k], model_));
+    });
     return rebuilt;
   }
 
@@ -381,9 +371,7 @@ class TreePass {
   GaussianMap fold(const std::vector<TreeSpan>& stack) const {
     if (stack.empty()) return *current_;
     std::vector<BuiltNode> built(stack.size());
-    std::vector<std::function<void()>> tasks;
-    for (std::size_t k = 0; k < stack.size(); ++k) tasks.emplace_back([&, k] { built[k] = build(stack[k]); });
-    run_tasks(tasks, threads_);
+    run_for_each(stack.size(), threads_, [&](std::size_t k) { built[k] = build(stack[k]); });
     std::shared_ptr<const GaussianMap> joined = current_;
     for (std::size_t k = stack.size() - 1;; --k) {
       const std::shared_ptr<const GaussianMap> first = std::move(built[k].map);

@@ -182,11 +182,7 @@ std::int64_t MapJoin::step(std::int64_t budget) {
       break;
     case Phase::Fill:
       spent += fill_->fill_next_tile();
-      if (fill_->done()) {
-        result_ = fill_->take_result();
-        release_inputs();
-        phase_ = Phase::Done;
-      }
+      if (fill_->done()) end_fill();
       break;
     case Phase::Done:
       break;
@@ -204,10 +200,14 @@ std::int64_t MapJoin::finish(int threads) {
   ScopedTimer timer(report_.seconds_total);
   const std::int64_t filled = fill_->fill_rest(threads);
   report_.work_units += filled;
+  end_fill();
+  return spent + filled;
+}
+
+void MapJoin::end_fill() {
   result_ = fill_->take_result();
   release_inputs();
   phase_ = Phase::Done;
-  return spent + filled;
 }
 
 GaussianMap MapJoin::take_result() {

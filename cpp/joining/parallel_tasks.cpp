@@ -71,4 +71,11 @@ void run_tasks(const std::vector<std::function<void()>>& tasks, int threads) {
   }
 }
 
+void run_for_each(std::size_t count, int threads, const std::function<void(std::size_t)>& task) {
+  std::vector<std::function<void()>> tasks;
+  tasks.reserve(count);
+  for (std::size_t k = 0; k < count; ++k) tasks.emplace_back([&task, k] { task(k); });
+  run_tasks(tasks, threads);
+}
+
 }  // namespace dcslam

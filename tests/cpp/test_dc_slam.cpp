@@ -381,6 +381,14 @@ TEST(DcSlam, ImmediateAmortizedAndThreadedAreBitwiseIdentical) {
   }
 }
 
+// Landmark ids, robot, landmarks and covariance equal bit for bit.
+void expect_bitwise_equal(const Estimate& a, const Estimate& b) {
+  EXPECT_EQ(a.landmark_ids, b.landmark_ids);
+  EXPECT_TRUE((a.robot.array() == b.robot.array()).all());
+  EXPECT_TRUE(a.landmarks.size() == b.landmarks.size() && (a.landmarks.array() == b.landmarks.array()).all());
+  EXPECT_TRUE(a.covariance.size() == b.covariance.size() && (a.covariance.array() == b.covariance.array()).all());
+}
+
 // A small square loop driven several times (160 steps, 10 % clutter, seed 0).
 Simulation small_loop_laps() {
   SimulationConfig scene;
@@ -531,11 +539,7 @@ TEST(DcSlam, EstimateIsBitwiseTheSameOnAnyNumberOfThreads) {
   }
   for (std::size_t m = 1; m < results.size(); ++m) {
     EXPECT_EQ(ids[m], ids[0]);
-    EXPECT_EQ(results[m].landmark_ids, results[0].landmark_ids);
-    EXPECT_TRUE((results[m].robot.array() == results[0].robot.array()).all());
-    EXPECT_TRUE((results[m].landmarks.array() == results[0].landmarks.array()).all());
-    EXPECT_TRUE(results[m].covariance.size() == results[0].covariance.size() &&
-                (results[m].covariance.array() == results[0].covariance.array()).all());
+    expect_bitwise_equal(results[m], results[0]);
   }
 }
 
@@ -557,11 +561,7 @@ TEST(DcSlamTree, OnePassIsBitwiseTheSameOnAnyNumberOfThreads) {
     EXPECT_EQ(dc.stats().counters.at("relinearisation_passes"), 1.0);
     EXPECT_GT(dc.joins().size(), 8u);
   }
-  EXPECT_EQ(results[1].landmark_ids, results[0].landmark_ids);
-  EXPECT_TRUE((results[1].robot.array() == results[0].robot.array()).all());
-  EXPECT_TRUE((results[1].landmarks.array() == results[0].landmarks.array()).all());
-  EXPECT_TRUE(results[1].covariance.size() == results[0].covariance.size() &&
-              (results[1].covariance.array() == results[0].covariance.array()).all());
+  expect_bitwise_equal(results[1], results[0]);
 }
 
 // estimate() while a join is pending computes that join on the side, and a later estimate()

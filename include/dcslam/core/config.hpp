@@ -107,10 +107,11 @@ struct SlamConfig {
   // D&C: a join of 8 local maps or more that makes at most this many pairs is weak: it also
   // builds its result without its pairs that have a feature seen once, and the next join
   // (or estimate()'s fold) joins whichever version scores higher: twice the pairs it makes
-  // itself plus the version's (docs/data_association.md, "Weak joins decided by the next join"). A join of 16 local
-  // maps or more that makes more pairs keeps its result without its doubtful pairs (when they
-  // are at least a tenth of its pairs), decided the same way ("Large joins' doubtful pairs,
-  // decided by the next join"). 0: off, every join's pairs are final when made.
+  // itself plus the version's (docs/data_association.md, "Weak joins decided by the next
+  // join", "Own pairs count twice"). A join of 16 local maps or more that makes more pairs
+  // keeps its result without its doubtful pairs (when they are at least a tenth of its pairs),
+  // decided the same way ("Large joins' doubtful pairs, decided by the next join"). 0: off,
+  // every join's pairs are final when made.
   int weak_join_pairings = 30;
   int local_map_features = 30;
   JoinAssociation join_association = JoinAssociation::Rjc;

@@ -89,6 +89,8 @@ class MapJoin : public ResumableWork<MapJoin> {
   std::int64_t associate_next(std::int64_t budget);
   void finish_association();
   void release_inputs();
+  // The fill is done: its result taken, the inputs released.
+  void end_fill();
 
   std::shared_ptr<const GaussianMap> first_, second_;
   JoinOptions options_;

@@ -4,6 +4,7 @@
 // carried through each version of a weak fold join (DCSlam::decide_by_rest_of_fold), the
 // column blocks of a join's result (JoinFill::fill_rest), and the re-linearisation pass's
 // leaves and disjoint subtrees (JoinTree::relinearise).
+#include <cstddef>
 #include <functional>
 #include <vector>
 
@@ -19,5 +20,7 @@ int estimate_thread_count(int configured);
 // multiplies the threads. Every task runs even when one throws; the exception of the first
 // task (in the list's order) that threw is then rethrown.
 void run_tasks(const std::vector<std::function<void()>>& tasks, int threads);
+// run_tasks() of task(0), ..., task(count - 1).
+void run_for_each(std::size_t count, int threads, const std::function<void(std::size_t)>& task);
 
 }  // namespace dcslam
