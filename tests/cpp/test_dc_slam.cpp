@@ -112,6 +112,15 @@ Estimate run_ekf(const std::vector<SlamStep>& run) {
   return ekf.estimate();
 }
 
+// Landmark ids, robot, landmarks and covariance equal bit for bit; `where` names the run.
+void expect_bitwise_equal(const Estimate& a, const Estimate& b, const std::string& where = "") {
+  SCOPED_TRACE(where);
+  EXPECT_EQ(a.landmark_ids, b.landmark_ids);
+  EXPECT_TRUE((a.robot.array() == b.robot.array()).all());
+  EXPECT_TRUE(a.landmarks.size() == b.landmarks.size() && (a.landmarks.array() == b.landmarks.array()).all());
+  EXPECT_TRUE(a.covariance.size() == b.covariance.size() && (a.covariance.array() == b.covariance.array()).all());
+}
+
 enum class Mode { Immediate, Amortized, Threaded };
 
 SlamConfig in_mode(SlamConfig config, Mode mode) {
@@ -222,8 +231,7 @@ TEST_P(DcSlamAnytime, EstimateMatchesEkfAtAnyStepWithoutDisturbingTheRun) {
   }
   undisturbed.finish_joins();
   dc.finish_joins();
-  const Estimate a = dc.estimate(), b = undisturbed.estimate();
-  EXPECT_TRUE((a.covariance.array() == b.covariance.array()).all());
+  expect_bitwise_equal(dc.estimate(), undisturbed.estimate());
 }
 
 INSTANTIATE_TEST_SUITE_P(Modes, DcSlamAnytime,
@@ -265,9 +273,7 @@ TEST(DcSlamOnlineLocalisation, BringsThePoseNearerTheExactOneAndLeavesTheMapsAlo
     }
     plain.finish_joins();
     localised.finish_joins();
-    const Estimate a = plain.estimate(), b = localised.estimate();
-    EXPECT_TRUE((a.covariance.array() == b.covariance.array()).all()) << mode_name(mode);
-    EXPECT_TRUE((a.landmarks.array() == b.landmarks.array()).all()) << mode_name(mode);
+    expect_bitwise_equal(plain.estimate(), localised.estimate(), mode_name(mode));
   }
 }
 
@@ -349,13 +355,7 @@ TEST(DcSlam, AFailedJoinRollsBackInEveryMode) {
       if (j != 13) oracle.update(run[j].z, run[j].R, &run[j].landmark_ids);
     }
     oracle.finish_joins();
-    const Estimate a = dc.estimate(), b = oracle.estimate();
-    EXPECT_TRUE(a.robot == b.robot) << mode_name(mode);
-    EXPECT_EQ(a.landmark_ids, b.landmark_ids) << mode_name(mode);
-    EXPECT_TRUE(a.landmarks.size() == b.landmarks.size() && (a.landmarks.array() == b.landmarks.array()).all())
-        << mode_name(mode);
-    EXPECT_TRUE(a.covariance.size() == b.covariance.size() && (a.covariance.array() == b.covariance.array()).all())
-        << mode_name(mode);
+    expect_bitwise_equal(dc.estimate(), oracle.estimate(), mode_name(mode));
   }
 }
 
@@ -374,19 +374,7 @@ TEST(DcSlam, ImmediateAmortizedAndThreadedAreBitwiseIdentical) {
       EXPECT_TRUE(spread);
     }
   }
-  for (std::size_t m = 1; m < results.size(); ++m) {
-    EXPECT_TRUE((results[m].covariance.array() == results[0].covariance.array()).all());
-    EXPECT_EQ(results[m].landmark_ids, results[0].landmark_ids);
-    EXPECT_TRUE((results[m].robot.array() == results[0].robot.array()).all());
-  }
-}
-
-// Landmark ids, robot, landmarks and covariance equal bit for bit.
-void expect_bitwise_equal(const Estimate& a, const Estimate& b) {
-  EXPECT_EQ(a.landmark_ids, b.landmark_ids);
-  EXPECT_TRUE((a.robot.array() == b.robot.array()).all());
-  EXPECT_TRUE(a.landmarks.size() == b.landmarks.size() && (a.landmarks.array() == b.landmarks.array()).all());
-  EXPECT_TRUE(a.covariance.size() == b.covariance.size() && (a.covariance.array() == b.covariance.array()).all());
+  for (std::size_t m = 1; m < results.size(); ++m) expect_bitwise_equal(results[m], results[0]);
 }
 
 // A small square loop driven several times (160 steps, 10 % clutter, seed 0).
@@ -446,10 +434,7 @@ TEST(DcSlam, WeakJoinsDecideAlikeInEveryMode) {
   }
   for (std::size_t m = 1; m < results.size(); ++m) {
     EXPECT_EQ(ids[m], ids[0]);
-    EXPECT_EQ(results[m].landmark_ids, results[0].landmark_ids);
-    EXPECT_TRUE((results[m].robot.array() == results[0].robot.array()).all());
-    EXPECT_TRUE(results[m].covariance.size() == results[0].covariance.size() &&
-                (results[m].covariance.array() == results[0].covariance.array()).all());
+    expect_bitwise_equal(results[m], results[0]);
   }
 }
 
@@ -595,12 +580,7 @@ TEST(DcSlam, EstimateAtEveryStepReusesPendingJoinsExactly) {
         if (event.step_finished == static_cast<std::int64_t>(step)) last_computed = event.index;
       }
       if (first_reused >= 0 && last_computed > first_reused) ++reused_then_computed;
-      const Estimate& immediate = expected[calls++];
-      ASSERT_EQ(estimate.landmark_ids, immediate.landmark_ids) << mode_name(mode) << ", step " << step;
-      ASSERT_TRUE((estimate.robot.array() == immediate.robot.array()).all()) << mode_name(mode) << ", step " << step;
-      ASSERT_TRUE(estimate.covariance.size() == immediate.covariance.size() &&
-                  (estimate.covariance.array() == immediate.covariance.array()).all())
-          << mode_name(mode) << ", step " << step;
+      expect_bitwise_equal(estimate, expected[calls++], std::string(mode_name(mode)) + ", step " + std::to_string(step));
     });
     // resolve() follows the last estimate()'s merges until the next step.
     const Estimate last = dc.estimate();
@@ -651,10 +631,7 @@ TEST(DcSlamOnlineLocalisation, SpreadOverStepsWithoutIds) {
     EXPECT_EQ(ids, plain_ids) << mode_name(mode);
     plain.finish_joins();
     localised.finish_joins();
-    const Estimate a = plain.estimate(), b = localised.estimate();
-    EXPECT_EQ(a.landmark_ids, b.landmark_ids) << mode_name(mode);
-    EXPECT_TRUE(a.covariance.size() == b.covariance.size() && (a.covariance.array() == b.covariance.array()).all())
-        << mode_name(mode);
+    expect_bitwise_equal(plain.estimate(), localised.estimate(), mode_name(mode));
   }
 }
 
@@ -858,7 +835,7 @@ TEST(DcSlam, PastPosesAreBitwiseTheSameInEveryJoinMode) {
   for (std::size_t m = 1; m < results.size(); ++m) {
     EXPECT_EQ(results[m].past_pose_ids, results[0].past_pose_ids);
     EXPECT_TRUE((results[m].past_poses.array() == results[0].past_poses.array()).all());
-    EXPECT_TRUE((results[m].covariance.array() == results[0].covariance.array()).all());
+    expect_bitwise_equal(results[m], results[0]);
   }
   // Off by default: no past poses, the covariance is [robot, landmarks] only.
   DCSlam plain(mode_config(8, Mode::Immediate));
