@@ -52,6 +52,7 @@ void define_config(py::module_& m) {
       .def_readwrite("rjc_b", &SlamConfig::rjc_b)
       .def_readwrite("rjc_p_good", &SlamConfig::rjc_p_good)
       .def_readwrite("rjc_p_fail", &SlamConfig::rjc_p_fail)
+      .def_readwrite("rjc_exchange_crossed", &SlamConfig::rjc_exchange_crossed)
       .def_readwrite("join_iterations", &SlamConfig::join_iterations)
       .def_readwrite("join_feature_sigma", &SlamConfig::join_feature_sigma)
       .def_readwrite("large_overlap_confidence", &SlamConfig::large_overlap_confidence)

@@ -14,6 +14,7 @@
 
 #include "dcslam/core/chi_square.hpp"
 #include "dcslam/core/errors.hpp"
+#include "dcslam/association/pairing_exchanges.hpp"
 
 namespace dcslam {
 
@@ -500,29 +501,38 @@ std::int64_t RjcSearch::conditional_next() {
   return work;
 }
 
-// The try's hypothesis: the conditional pairings greedily by distance, each feature used once;
+// The try's hypothesis: the conditional pairings greedily by distance, each feature used once
+// (and with options_.exchange_crossed, crossed pairings exchanged: pairing_exchanges.hpp);
 // kept if it beats the best, which may raise p_good and so lower the number of tries.
 std::int64_t RjcSearch::complete_try() {
   std::sort(conditional_.begin(), conditional_.end());
   int pairings = options_.b;
-  double score = seed_distance_sq_;
-  order_ = seed_.pairings;
+  std::vector<int> paired;
   for (const auto& [distance_sq, measurement, feature] : conditional_) {
     if (feature_of_[measurement] != kStar) continue;
     if (std::find(used_features_.begin(), used_features_.end(), feature) != used_features_.end()) {
       continue;
     }
-    order_.push_back(Pairing{measurement, feature});
+    paired.push_back(measurement);
     feature_of_[measurement] = feature;
     used_features_.push_back(feature);
     ++pairings;
+  }
+  std::int64_t work = options_.exchange_crossed ? exchange_crossed_pairings(conditional_, paired, feature_of_) : 0;
+  // The conditional list holds no measurement of the seed, and each (measurement, feature)
+  // once: its entries that are pairings now, in its order, are the try's pairings by distance.
+  double score = seed_distance_sq_;
+  order_ = seed_.pairings;
+  for (const auto& [distance_sq, measurement, feature] : conditional_) {
+    if (feature_of_[measurement] != feature) continue;
+    order_.push_back(Pairing{measurement, feature});
     score += distance_sq;
   }
   try_pairings_ = pairings;
   try_score_ = score;
   const auto c = static_cast<std::int64_t>(conditional_.size());
-  const std::int64_t work = 1 + c * (4 + work_units(static_cast<std::int64_t>(used_features_.size()))) +
-                            work_units(static_cast<std::int64_t>(feature_of_.size()));
+  work += 1 + c * (4 + work_units(static_cast<std::int64_t>(used_features_.size()))) +
+          work_units(static_cast<std::int64_t>(feature_of_.size()));
   if (options_.verify && pairings > options_.b && worth_verifying(pairings)) {
     // Scored once verified (see rjc()), a pairing per step like the final verification; the
     // kept hypothesis is the try's own, and if it is the best this verification is the final

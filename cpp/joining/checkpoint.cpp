@@ -190,6 +190,7 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod(c.rjc_b);
   out.pod(c.rjc_p_good);
   out.pod(c.rjc_p_fail);
+  out.pod<std::uint8_t>(c.rjc_exchange_crossed);
   out.pod(c.join_iterations);
   out.pod(c.join_feature_sigma);
   out.pod(c.large_overlap_confidence);
@@ -234,6 +235,7 @@ SlamConfig load_config(Reader& in) {
   c.rjc_b = in.pod<int>();
   c.rjc_p_good = in.pod<double>();
   c.rjc_p_fail = in.pod<double>();
+  c.rjc_exchange_crossed = in.flag();
   c.join_iterations = in.pod<int>();
   c.join_feature_sigma = in.pod<double>();
   c.large_overlap_confidence = in.pod<double>();

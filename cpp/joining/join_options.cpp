@@ -11,6 +11,7 @@ JoinOptions join_options_of(const SlamConfig& config) {
   options.rjc.b = config.rjc_b;
   options.rjc.p_good = config.rjc_p_good;
   options.rjc.p_fail = config.rjc_p_fail;
+  options.rjc.exchange_crossed = config.rjc_exchange_crossed;
   options.max_iterations = config.join_iterations;
   options.feature_sigma = config.join_feature_sigma;
   // Every local-map boundary is the R1 of exactly one join of the tree (or of the anytime

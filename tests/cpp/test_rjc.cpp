@@ -1,5 +1,6 @@
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <memory>
 #include <random>
 #include <vector>
@@ -480,6 +481,58 @@ TEST(Rjc, WithoutRivalsTheMarginChangesNothing) {
     EXPECT_EQ(with_margin.tries, plain.tries) << "seed " << seed;
   }
   EXPECT_GE(without_rivals, 10);
+}
+
+// Independent pairings with the innovations of a table: six landmarks each a feature in both
+// maps, and two close ones whose nearest single pair (m7, f1) crosses them. With the exchange,
+// a try whose seed holds neither m6 nor m7 pairs them right; without it, wrong. Over many
+// draws the exchange is right more often, and never pairs them wrong where the plain search is
+// right.
+class TablePairingModel : public PairingModel {
+ public:
+  explicit TablePairingModel(std::map<std::pair<int, int>, double> distance_sq) : distance_sq_(std::move(distance_sq)) {}
+  Vec2 innovation(const Pairing& p) const override {
+    return Vec2(std::sqrt(distance_sq_.at({p.measurement, p.feature})), 0.0);
+  }
+  Mat2 covariance(const Pairing& a, const Pairing& b) const override {
+    return a.measurement == b.measurement && a.feature == b.feature ? Mat2(Mat2::Identity()) : Mat2(Mat2::Zero());
+  }
+
+ private:
+  std::map<std::pair<int, int>, double> distance_sq_;
+};
+
+TEST(Rjc, ExchangedCrossingsPairTwoCloseLandmarksRightMoreOften) {
+  std::map<std::pair<int, int>, double> distance_sq;
+  CandidateLists candidates(8);
+  for (int m = 0; m < 6; ++m) {
+    distance_sq[{m, 10 + m}] = 0.2;
+    candidates[static_cast<std::size_t>(m)] = {10 + m};
+  }
+  distance_sq[{6, 0}] = 0.3;
+  distance_sq[{6, 1}] = 3.0;
+  distance_sq[{7, 0}] = 0.1;
+  distance_sq[{7, 1}] = 0.4;
+  candidates[6] = {0, 1};
+  candidates[7] = {0, 1};
+  const TablePairingModel model(distance_sq);
+  int right_plain = 0, right_exchanged = 0;
+  for (std::uint64_t seed = 0; seed < 60; ++seed) {
+    RjcOptions options;
+    options.seed = seed;
+    const RjcResult plain = rjc(candidates, model, options);
+    options.exchange_crossed = true;
+    const RjcResult exchanged = rjc(candidates, model, options);
+    ASSERT_EQ(plain.pairings, 8);
+    ASSERT_EQ(exchanged.pairings, 8);
+    const bool plain_right = plain.feature_of[6] == 0 && plain.feature_of[7] == 1;
+    const bool exchanged_right = exchanged.feature_of[6] == 0 && exchanged.feature_of[7] == 1;
+    right_plain += plain_right;
+    right_exchanged += exchanged_right;
+    EXPECT_TRUE(exchanged_right || !plain_right) << "seed " << seed;
+  }
+  EXPECT_GT(right_exchanged, right_plain + 5);
+  EXPECT_LT(right_exchanged, 60);  // a seed that draws m7 alone pairs it first: no exchange undoes a seed
 }
 
 TEST(Rjc, RejectsBadOptions) {

@@ -45,6 +45,8 @@ struct RjcOptions {
   // rival is a verified try of at least (best's pairings - rival_margin) pairings fewer than
   // kRivalShare of whose pairings agree with the best try. < 0: the best try as it is.
   int rival_margin = -1;
+  // Each try's greedy hypothesis has its crossed pairings exchanged (pairing_exchanges.hpp).
+  bool exchange_crossed = false;
 };
 
 // A try fewer than this share of whose pairings agree with the best try is another hypothesis,

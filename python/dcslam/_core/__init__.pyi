@@ -20,6 +20,7 @@ class SlamConfig:
     keep_local_map_poses: bool
     new_feature_beside_tentative: bool
     observation: str
+    rjc_exchange_crossed: bool
     threaded_joins: bool
     def __init__(self) -> None:
         ...
