@@ -135,17 +135,22 @@ std::int64_t DecidingJoin::remaining_work() const {
 // this join its own pairs. So a version with fewer pairs is taken when this join gains more
 // than half the pairs it drops: long_revisits seed 0's 32-leaf join that made 6 of its 25
 // pairs wrong, whose version without any pair let the next join make 17 more of its own
-// (docs/data_association.md, "Own pairs count twice").
+// (docs/data_association.md, "Own pairs count twice"). At a tie the combination with more
+// pairs of this join's own wins, this join's own evidence (long_revisits seed 3: two weak
+// joins, either's pairs bending the next join against the other's, tied at 667; the versions'
+// order kept the one with 3 wrong pairs of 25; "Crossed pairings exchanged").
 void DecidingJoin::choose() {
   std::size_t best = 0;
   std::int64_t best_score = -1;
+  std::size_t best_own = 0;
   for (std::size_t k = 0; k < candidates_.size(); ++k) {
     const Candidate& candidate = candidates_[k];
-    const std::int64_t score = 2 * static_cast<std::int64_t>(candidate.join->pairs().size()) +
-                               version_pairs(first_, candidate.first_version) +
+    const std::size_t own = candidate.join->pairs().size();
+    const std::int64_t score = 2 * static_cast<std::int64_t>(own) + version_pairs(first_, candidate.first_version) +
                                version_pairs(second_, candidate.second_version);
-    if (score > best_score) {
+    if (score > best_score || (score == best_score && own > best_own)) {
       best_score = score;
+      best_own = own;
       best = k;
     }
   }

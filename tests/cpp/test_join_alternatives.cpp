@@ -89,10 +89,10 @@ TEST(DecidingJoin, WithoutAlternativesItIsThePlainJoinInAnySlices) {
 }
 
 // The combination taken has the most of: twice the join's own pairs plus the pairs its inputs'
-// versions keep (DecidingJoin::choose()).
+// versions keep, a tie going to the one with more own pairs (DecidingJoin::choose()).
 TEST(DecidingJoin, TakesTheCombinationWhoseOwnPairsCountTwiceTheVersionsPairs) {
   std::mt19937_64 rng(11);
-  int took_an_alternative = 0, took_a_second_version = 0;
+  int took_an_alternative = 0, took_a_second_version = 0, ties_to_more_own = 0;
   for (int trial = 0; trial < 60; ++trial) {
     // Each input: as made and one or two other versions.
     std::uniform_int_distribution<int> other_versions(1, 2);
@@ -108,13 +108,17 @@ TEST(DecidingJoin, TakesTheCombinationWhoseOwnPairsCountTwiceTheVersionsPairs) {
       seconds.push_back(shared_random_map(rng, some_ids(rng, size(rng), 24)));
       second_pairs.push_back(some_pairs(rng));
     }
-    // Brute force, the versions in order (as made first) and a tie keeping the earlier.
-    std::size_t best_total = 0, best_first = 0, best_second = 0;
+    // Brute force, the versions in order (as made first); a tie goes to more own pairs, then
+    // to the earlier.
+    std::size_t best_total = 0, best_own = 0, best_first = 0, best_second = 0;
     for (std::size_t a = 0; a < firsts.size(); ++a) {
       for (std::size_t b = 0; b < seconds.size(); ++b) {
-        const std::size_t total = 2 * shared_ids(*firsts[a], *seconds[b]) + first_pairs[a] + second_pairs[b];
-        if ((a == 0 && b == 0) || total > best_total) {
+        const std::size_t own = shared_ids(*firsts[a], *seconds[b]);
+        const std::size_t total = 2 * own + first_pairs[a] + second_pairs[b];
+        if (a + b > 0 && total == best_total && own > best_own) ++ties_to_more_own;
+        if ((a == 0 && b == 0) || total > best_total || (total == best_total && own > best_own)) {
           best_total = total;
+          best_own = own;
           best_first = a;
           best_second = b;
         }
@@ -141,6 +145,7 @@ TEST(DecidingJoin, TakesTheCombinationWhoseOwnPairsCountTwiceTheVersionsPairs) {
   // The cases are not all decided one way.
   EXPECT_GT(took_an_alternative, 10);
   EXPECT_GT(took_a_second_version, 5);
+  EXPECT_GT(ties_to_more_own, 0);
 }
 
 TEST(DecidingJoin, AWeakJoinsAlternativeLeavesOutThePairsOfFeaturesSeenOnce) {

@@ -27,10 +27,11 @@ def loop_run(scene_seed, split=None, at_split=None, **options):
     # As traced: rejecting what the local maps leave unpaired beside tentative features, and
     # offering tentative features beside confirmed ones (with confirmed_first_confidence, the
     # default since 2026-12-06, seed 9's loop closes right without the rule), with RJC's tries
-    # of then (rjc_p_fail 0.01, until 2026-12-06: other tries are another draw of the closure).
+    # of then (rjc_p_fail 0.01, until 2026-12-06: other tries are another draw of the closure)
+    # and without their crossed pairings exchanged (the default since 2026-12-08).
     config = dcslam.SlamConfig(association="jcbb", join_association="rjc", seed=scene_seed + 2000,
                                new_feature_beside_tentative=False, confirmed_first_confidence=None,
-                               rjc_p_fail=0.01, **options)
+                               rjc_p_fail=0.01, rjc_exchange_crossed=False, **options)
     slam, returned, estimate = run_dc(sim, config, split=split, at_split=at_split)
     return slam, returned, estimate, evaluation.evaluate_run(slam, estimate, returned, sim).robot
 

@@ -132,10 +132,6 @@ def test_a_wrong_pair_without_a_feature_seen_once_is_taken_back_too():
     assert sum(join["alternatives_taken"] for join in joins) >= 1
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "since the deciding join counts its own pairs twice (2026-12-07) this traced configuration "
-    "ends at recall 0.68, below its 0.74 without any version (weak_join_pairings=0); not traced "
-    "(docs/data_association.md, 'Own pairs count twice')"))
 def test_a_large_joins_doubtful_pairs_are_taken_back():
     """long_revisits seed 1: a large join's doubtful pairs (a rival candidate nearly as close)
     bend its map; without them the next join makes more pairs in all and takes that version.
@@ -143,7 +139,10 @@ def test_a_large_joins_doubtful_pairs_are_taken_back():
     With the maps' covariances alone in the join tests (join_feature_sigma 0): with the default
     1 cm per feature that join's pairs are right and no version is needed there. And with RJC
     alone at the large joins (chunked_jcbb_min_overlap 0): chunked JCBB pairs that join without
-    the doubtful pairs' damage (recall 0.895, no version taken back)."""
+    the doubtful pairs' damage (recall 0.895, no version taken back). With RJC's crossed
+    pairings exchanged (rjc_exchange_crossed, the default since 2026-12-08) the run ends at
+    0.895; without them at 0.68 since the deciding join counts its own pairs twice (2026-12-07;
+    0.74 without any version), a counter-example not traced."""
     sim = dcslam.revisit_scenario("long_revisits", 1)
     config = dataclasses.replace(BASE, seed=1, join_feature_sigma=0.0, chunked_jcbb_min_overlap=0)
     slam, returned, estimate = run_dc(sim, config)

@@ -119,11 +119,10 @@ struct SlamConfig {
   double rjc_p_good = 0.8;
   double rjc_p_fail = 0.001;
   // D&C: each RJC try's greedy hypothesis exchanges the features of two pairings whose sum of
-  // distances then falls (close landmarks paired crosswise; pairing_exchanges.hpp). Off by
-  // default: on seven of the eight simulated scenes it raises recall by 0.001-0.006, but on
-  // long_revisits it tips a knife-edge decision of the next join the wrong way (two of 30 runs
-  // collapse), docs/data_association.md, "Crossed pairings exchanged".
-  bool rjc_exchange_crossed = false;
+  // distances then falls (close landmarks paired crosswise; pairing_exchanges.hpp). On by
+  // measurement: recall as high or higher on every simulated scene (docs/data_association.md,
+  // "Crossed pairings exchanged"); false: the greedy hypothesis as it is.
+  bool rjc_exchange_crossed = true;
   // D&C: linearisation points of each join's constraint update (iterated EKF; 1 = the
   // one-shot join linearised at the prior means).
   int join_iterations = 10;
