@@ -520,6 +520,7 @@ TEST(Rjc, ExchangedCrossingsPairTwoCloseLandmarksRightMoreOften) {
   for (std::uint64_t seed = 0; seed < 60; ++seed) {
     RjcOptions options;
     options.seed = seed;
+    options.exchange_crossed = false;
     const RjcResult plain = rjc(candidates, model, options);
     options.exchange_crossed = true;
     const RjcResult exchanged = rjc(candidates, model, options);

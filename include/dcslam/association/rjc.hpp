@@ -22,7 +22,8 @@
 namespace dcslam {
 
 // Every setting of RJC, with the defaults D&C's joins run with (SlamConfig's rjc_* fields set
-// b, p_good and p_fail; JoinOptions holds these settings and hands them down as they are).
+// b, p_good, p_fail and exchange_crossed; JoinOptions holds these settings and hands them down
+// as they are).
 struct RjcOptions {
   int b = 4;             // measurements drawn per try and paired by JCBB*
   double p_good = 0.8;   // prior probability that an overlap measurement has a true pairing
@@ -46,7 +47,7 @@ struct RjcOptions {
   // kRivalShare of whose pairings agree with the best try. < 0: the best try as it is.
   int rival_margin = -1;
   // Each try's greedy hypothesis has its crossed pairings exchanged (pairing_exchanges.hpp).
-  bool exchange_crossed = false;
+  bool exchange_crossed = true;
 };
 
 // A try fewer than this share of whose pairings agree with the best try is another hypothesis,

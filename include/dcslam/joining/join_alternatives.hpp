@@ -10,8 +10,9 @@
 // doubtful ones, those with a rival candidate nearly as close. The next join sees much more of
 // the map:
 // it runs its association on each combination of its inputs' versions and joins the one with
-// the highest score, twice its own pairs plus those of the versions it takes (a tie keeps the
-// tighter versions: as made, then less the pairs of features seen once). Until then the ids
+// the highest score, twice its own pairs plus those of the versions it takes (a tie goes to
+// more pairs of its own, then keeps the tighter versions: as made, then less the pairs of
+// features seen once). Until then the ids
 // of no version are recorded.
 #include <cstdint>
 #include <functional>
