@@ -66,6 +66,8 @@ Options of sim, scaling, vp and isam:
   --new-feature-beside-tentative 0|1  SlamConfig.new_feature_beside_tentative: unpaired beside
                        tentative features only starts a feature on probation  [0]
   --tree-relinearisation N  SlamConfig.tree_relinearisation: passes in estimate()  [0]
+  --tree-relinearisation-tolerance T  SlamConfig.tree_relinearisation_tolerance: the passes
+                       stop once another could gain at most T of the objective  [3.84]
   --weak-join-pairings N  SlamConfig.weak_join_pairings (0: off)   [30]
   --join-merge-max-leaves N  SlamConfig.join_merge_max_leaves (0: off)  [0]
   --chunked-jcbb-min-overlap N  SlamConfig.chunked_jcbb_min_overlap (0: off)  [100]
@@ -272,6 +274,8 @@ struct RunResult {
   std::vector<double> step_association_seconds;
   std::vector<std::int64_t> step_features;
   std::vector<JoinEvent> joins;
+  // D&C with tree_relinearisation: the passes' counters (relinearisation_*), else empty.
+  std::map<std::string, double> relinearisation;
   double stream_seconds = 0.0;  // one copy of a matrix the size of the final covariance
 };
 
@@ -315,6 +319,9 @@ RunResult run_filter(const std::string& filter, const SlamConfig& config,
   if (dc) result.joins = dc->joins();
   result.total_seconds = std::chrono::duration<double>(Clock::now() - start).count();
   result.peak_rss_growth_bytes = status_bytes("VmHWM") - rss_before;
+  for (const auto& [name, value] : slam->stats().counters) {
+    if (name.rfind("relinearisation_", 0) == 0) result.relinearisation[name] = value;
+  }
   for (const StepStats& step : slam->stats().steps) {
     result.step_seconds.push_back(step.seconds);
     result.step_association_seconds.push_back(step.association_seconds);
@@ -355,6 +362,8 @@ void apply_run_options(const Args& args, SlamConfig& config) {
   config.join_feature_sigma = real_number(args, "join-feature-sigma", config.join_feature_sigma);
   config.rjc_p_fail = real_number(args, "rjc-p-fail", config.rjc_p_fail);
   config.tree_relinearisation = static_cast<int>(number(args, "tree-relinearisation", config.tree_relinearisation));
+  config.tree_relinearisation_tolerance =
+      real_number(args, "tree-relinearisation-tolerance", config.tree_relinearisation_tolerance);
   config.weak_join_pairings = static_cast<int>(number(args, "weak-join-pairings", config.weak_join_pairings));
   config.join_merge_max_leaves =
       static_cast<int>(number(args, "join-merge-max-leaves", config.join_merge_max_leaves));
@@ -452,6 +461,12 @@ void print_result(const RunResult& r) {
                 r.joins.size(), static_cast<long long>(biggest->report.features_joined),
                 biggest->report.seconds_total, biggest->report.seconds_total / r.stream_seconds,
                 most_iterations);
+  }
+  if (!r.relinearisation.empty()) {
+    const auto value = [&](const char* name) { return r.relinearisation.at(std::string("relinearisation_") + name); };
+    std::printf("       re-linearised: %d passes, batch objective %.3f -> %.3f (last pass predicted %.3f)\n",
+                static_cast<int>(value("passes")), value("first_objective"), value("objective"),
+                value("predicted_objective"));
   }
 }
 
@@ -767,7 +782,7 @@ int command_ekf_association(const Args& args) {
 void refuse_unknown_options(const std::string& command, const Args& args) {
   const std::vector<std::string> run = {"filter", "joins", "local-map-features", "join-iterations",
                                         "join-feature-sigma", "keep-local-map-poses", "new-feature-beside-tentative",
-                                        "tree-relinearisation", "weak-join-pairings", "join-merge-max-leaves",
+                                        "tree-relinearisation", "tree-relinearisation-tolerance", "weak-join-pairings", "join-merge-max-leaves",
                                         "chunked-jcbb-min-overlap", "join-rival-margin", "online-localisation-sigma",
                                         "confirmed-first-confidence", "rjc-p-fail", "seed", "json"};
   const std::vector<std::string> simulated = {"trajectory", "association", "clutter", "odometry-noise-scale",

@@ -59,6 +59,7 @@ void define_config(py::module_& m) {
       .def_readwrite("chunked_jcbb_min_overlap", &SlamConfig::chunked_jcbb_min_overlap)
       .def_readwrite("join_rival_margin", &SlamConfig::join_rival_margin)
       .def_readwrite("tree_relinearisation", &SlamConfig::tree_relinearisation)
+      .def_readwrite("tree_relinearisation_tolerance", &SlamConfig::tree_relinearisation_tolerance)
       .def_readwrite("seed", &SlamConfig::seed)
       .def_readwrite("amortize", &SlamConfig::amortize)
       .def_readwrite("threaded_joins", &SlamConfig::threaded_joins)

@@ -88,6 +88,8 @@ void SlamConfig::validate() const {
           "join_iterations: must be >= 1, got " + std::to_string(join_iterations));
   require(tree_relinearisation >= 0 && tree_relinearisation <= 100,
           "tree_relinearisation: must lie in [0, 100], got " + std::to_string(tree_relinearisation));
+  require(std::isfinite(tree_relinearisation_tolerance) && tree_relinearisation_tolerance >= 0.0,
+          "tree_relinearisation_tolerance: must be finite and >= 0, got " + number_text(tree_relinearisation_tolerance));
   require(large_overlap_confidence > 0.0 && large_overlap_confidence < 1.0,
           "large_overlap_confidence: must lie in (0, 1), got " + number_text(large_overlap_confidence));
   require(!join_rival_margin || *join_rival_margin >= 0,

@@ -152,7 +152,7 @@ class Reader {
 
 // A field added to SlamConfig must be added here too (and kCheckpointVersion raised): the size
 // check below fails the build until it is.
-static_assert(sizeof(SlamConfig) == 248, "SlamConfig changed: update save_config/load_config");
+static_assert(sizeof(SlamConfig) == 256, "SlamConfig changed: update save_config/load_config");
 
 // A flag and the value (0 when unset), read back as set or unset whatever the field's default.
 template <typename T>
@@ -197,6 +197,7 @@ void save_config(Writer& out, const SlamConfig& c) {
   out.pod(c.chunked_jcbb_min_overlap);
   optional_value(out, c.join_rival_margin);
   out.pod(c.tree_relinearisation);
+  out.pod(c.tree_relinearisation_tolerance);
   out.pod(c.seed);
   out.pod<std::uint8_t>(c.amortize);
   out.pod<std::uint8_t>(c.threaded_joins);
@@ -242,6 +243,7 @@ SlamConfig load_config(Reader& in) {
   c.chunked_jcbb_min_overlap = in.pod<int>();
   c.join_rival_margin = optional_value<int>(in);
   c.tree_relinearisation = in.pod<int>();
+  c.tree_relinearisation_tolerance = in.pod<double>();
   c.seed = in.pod<std::uint64_t>();
   c.amortize = in.flag();
   c.threaded_joins = in.flag();
@@ -647,6 +649,7 @@ struct CheckpointAccess {
     out.pod(f.relinearisation_.last_step);
     out.pod(f.relinearisation_.first_objective);
     out.pod(f.relinearisation_.objective);
+    out.pod(f.relinearisation_.predicted_objective);
     out.pod(f.relinearisation_.halvings);
   }
 
@@ -680,6 +683,7 @@ struct CheckpointAccess {
     f.relinearisation_.last_step = in.pod<double>();
     f.relinearisation_.first_objective = in.pod<double>();
     f.relinearisation_.objective = in.pod<double>();
+    f.relinearisation_.predicted_objective = in.pod<double>();
     f.relinearisation_.halvings = in.pod<int>();
   }
 

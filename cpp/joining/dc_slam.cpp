@@ -1058,8 +1058,8 @@ Estimate DCSlam::estimate() const {
     const LeafLog open_log = seal_leaf_log(open_log_, local_->map(), local_->merged_ids());
     GaussianMap root = tree_.relinearise(spans, *compact_copy(local_->map()), open_log, final_id, *joined,
                                          join_options(0, 0), LeafModel{config_.observation, config_.sensor_offset},
-                                         config_.tree_relinearisation, kRelinearisationTolerance, estimate_threads_,
-                                         &report);
+                                         config_.tree_relinearisation, kRelinearisationTolerance,
+                                         config_.tree_relinearisation_tolerance, estimate_threads_, &report);
     {
       std::lock_guard<std::mutex> lock(mutex_);
       relinearisation_ = report;
@@ -1252,6 +1252,7 @@ const RunStats& DCSlam::stats() const {
     stats_.counters["relinearisation_last_step"] = relinearisation_.last_step;
     stats_.counters["relinearisation_first_objective"] = relinearisation_.first_objective;
     stats_.counters["relinearisation_objective"] = relinearisation_.objective;
+    stats_.counters["relinearisation_predicted_objective"] = relinearisation_.predicted_objective;
     stats_.counters["relinearisation_halvings"] = relinearisation_.halvings;
   }
   for (const char* name : kLocalCounters) {

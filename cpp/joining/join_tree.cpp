@@ -43,7 +43,9 @@ constexpr int kLineSearchHalvings = 20;
 // Two features of one local map that estimate()'s duplicate merge made one landmark carry one
 // id once relabelled. The batch problem has one landmark for both; the local map's Gaussian
 // conditioned on f_a = f_b (and f_b marginalised) is that local map's part of it.
-std::shared_ptr<const GaussianMap> with_repeated_ids_merged(std::shared_ptr<const GaussianMap> map) {
+// `distance_sq` gains each merge's D^2 (what imposing it adds to the least-squares objective).
+std::shared_ptr<const GaussianMap> with_repeated_ids_merged(std::shared_ptr<const GaussianMap> map,
+                                                            double& distance_sq) {
   std::unordered_map<std::int64_t, Index> first_of;
   std::vector<std::pair<Index, Index>> repeats;
   for (Index k = 0; k < map->num_features(); ++k) {
@@ -54,6 +56,7 @@ std::shared_ptr<const GaussianMap> with_repeated_ids_merged(std::shared_ptr<cons
   auto merged = std::make_shared<GaussianMap>(*map);
   std::vector<Index> dropped;
   for (const auto& [kept, repeat] : repeats) {
+    distance_sq += feature_difference_distance_sq(*merged, kept, repeat);
     if (!impose_equal_features(*merged, kept, repeat)) {
       throw std::logic_error("JoinTree::relinearise: two features of one local map merged into " +
                              std::to_string(map->ids()[static_cast<std::size_t>(kept)]) +
@@ -293,6 +296,9 @@ class BoundaryFit {
 struct BuiltNode {
   std::shared_ptr<const GaussianMap> map;
   std::vector<TentativeFeature> tentative;
+  // In a pass: the minimum of the node's linearised least-squares problem, summed over its
+  // leaves' filters and its joins' constraints (the prediction-error decomposition).
+  double distance_sq = 0.0;
 };
 
 // The leaves (the open local map last) at a global estimate: their intermediate poses fitted
@@ -321,12 +327,14 @@ class LeafRebuilder {
     return total;
   }
 
-  // Every leaf rebuilt at `point`, with the poses of the last fit() (at `point`).
-  std::vector<std::shared_ptr<const GaussianMap>> rebuild(const GlobalEstimate& point, int threads) const {
-    std::vector<std::shared_ptr<const GaussianMap>> rebuilt(maps_.size());
+  // Every leaf rebuilt at `point`, with the poses of the last fit() (at `point`), and the sum
+  // of its filter's normalised innovations squared (rebuild_leaf()).
+  std::vector<std::pair<std::shared_ptr<const GaussianMap>, double>> rebuild(const GlobalEstimate& point,
+                                                                             int threads) const {
+    std::vector<std::pair<std::shared_ptr<const GaussianMap>, double>> rebuilt(maps_.size());
     run_for_each(maps_.size(), threads, [&](std::size_t k) {
-      rebuilt[k] = std::make_shared<const GaussianMap>(
-          rebuild_leaf(*maps_[k], *logs_[k], leaf_point(k, point), poses_[k], model_));
+      rebuilt[k].first = std::make_shared<const GaussianMap>(
+          rebuild_leaf(*maps_[k], *logs_[k], leaf_point(k, point), poses_[k], model_, &rebuilt[k].second));
     });
     return rebuilt;
   }
@@ -360,23 +368,25 @@ class TreePass {
  public:
   // The joins of disjoint subtrees are independent: they run side by side on up to `threads`
   // threads (estimate_threads), each on its own maps, with the same results on any number.
-  TreePass(const JoinTree& tree, const std::vector<BuiltNode>& leaves,
-           std::shared_ptr<const GaussianMap> current, const JoinOptions& options,
-           const GlobalEstimate& point, int threads)
+  TreePass(const JoinTree& tree, const std::vector<BuiltNode>& leaves, BuiltNode current,
+           const JoinOptions& options, const GlobalEstimate& point, int threads)
       : tree_(tree), leaves_(leaves), current_(std::move(current)), options_(options), point_(point),
         threads_(threads) {}
 
   // DCSlam::estimate()'s fold: each node of the stack, top first, joined with everything after
   // it. The stack's nodes are built first, side by side; then the fold's joins, in order.
-  GaussianMap fold(const std::vector<TreeSpan>& stack) const {
-    if (stack.empty()) return *current_;
+  // `distance_sq`: the minimum of the whole linearised problem (BuiltNode::distance_sq).
+  GaussianMap fold(const std::vector<TreeSpan>& stack, double& distance_sq) const {
+    distance_sq = current_.distance_sq;
+    if (stack.empty()) return *current_.map;
     std::vector<BuiltNode> built(stack.size());
     run_for_each(stack.size(), threads_, [&](std::size_t k) { built[k] = build(stack[k]); });
-    std::shared_ptr<const GaussianMap> joined = current_;
+    std::shared_ptr<const GaussianMap> joined = current_.map;
     for (std::size_t k = stack.size() - 1;; --k) {
       const std::shared_ptr<const GaussianMap> first = std::move(built[k].map);
       MapJoin join(first, joined, options_for(stack[k], tree_.num_leaves(), *first, *joined));
       join.finish(threads_);
+      distance_sq += built[k].distance_sq + join.report().constraint_distance_sq;
       GaussianMap result = join.take_result();
       if (k == 0) return result;
       joined = std::make_shared<const GaussianMap>(std::move(result));
@@ -396,6 +406,7 @@ class TreePass {
                  last_chance(*second.map, second.tentative, node.first_leaf, node.last_leaf()));
     join.finish(threads_);
     BuiltNode built;
+    built.distance_sq = first.distance_sq + second.distance_sq + join.report().constraint_distance_sq;
     built.map = std::make_shared<const GaussianMap>(join.take_result());
     built.tentative = joined_tentative(first.tentative, second.tentative, join, node.first_leaf, node.last_leaf());
     return built;
@@ -448,7 +459,7 @@ class TreePass {
 
   const JoinTree& tree_;
   const std::vector<BuiltNode>& leaves_;
-  std::shared_ptr<const GaussianMap> current_;
+  BuiltNode current_;
   JoinOptions options_;
   const GlobalEstimate& point_;
   int threads_;
@@ -459,7 +470,7 @@ class TreePass {
 GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const GaussianMap& current,
                                   const LeafLog& open_log, const std::function<std::int64_t(std::int64_t)>& final_id,
                                   const GaussianMap& start, const JoinOptions& options, const LeafModel& model,
-                                  int max_passes, double tolerance, int threads,
+                                  int max_passes, double tolerance, double objective_tolerance, int threads,
                                   RelinearisationReport* report) const {
   if (max_passes < 1) throw std::logic_error("JoinTree::relinearise: max_passes must be >= 1");
   const auto relabel = [&](std::int64_t id) {
@@ -525,14 +536,20 @@ GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const Gaus
   done.first_objective = objective;
   GaussianMap result;
   for (int pass = 0; pass < max_passes; ++pass) {
-    const std::vector<std::shared_ptr<const GaussianMap>> rebuilt = rebuilder.rebuild(point, threads);
+    const auto rebuilt = rebuilder.rebuild(point, threads);
     std::vector<BuiltNode> pass_leaves;
-    pass_leaves.reserve(leaves.size());
-    for (std::size_t k = 0; k < leaves.size(); ++k) {
-      pass_leaves.push_back(BuiltNode{with_repeated_ids_merged(rebuilt[k]), leaves[k].tentative});
+    pass_leaves.reserve(rebuilt.size());
+    for (std::size_t k = 0; k < rebuilt.size(); ++k) {
+      BuiltNode& leaf = pass_leaves.emplace_back();
+      leaf.distance_sq = rebuilt[k].second;
+      leaf.map = with_repeated_ids_merged(rebuilt[k].first, leaf.distance_sq);
+      if (k < leaves.size()) leaf.tentative = leaves[k].tentative;
     }
-    GaussianMap next =
-        TreePass(*this, pass_leaves, with_repeated_ids_merged(rebuilt.back()), options, point, threads).fold(stack);
+    BuiltNode open_leaf = std::move(pass_leaves.back());
+    pass_leaves.pop_back();
+    double predicted = 0.0;
+    GaussianMap next = TreePass(*this, pass_leaves, std::move(open_leaf), options, point, threads).fold(stack, predicted);
+    done.predicted_objective = predicted;
     // The line search: the Gauss–Newton step is taken whole where it lowers the batch
     // objective (always, near the optimum), else halved until it does. Each try refits the
     // intermediate poses, O(steps + measurements), next to the pass's O(n^2) joins.
@@ -558,7 +575,11 @@ GaussianMap JoinTree::relinearise(const std::vector<TreeSpan>& stack, const Gaus
     done.last_step = largest_change(pass == 0 ? start : result, next);
     ++done.passes;
     result = std::move(next);
-    if (!lowered || done.last_step <= tolerance) break;
+    // Taken whole, the step's departure from its linearised problem estimates what another
+    // pass could gain (docs/divide_and_conquer.md, "When the passes stop").
+    const bool close_enough = objective_tolerance > 0.0 && lowered && alpha == 1.0 &&
+                              std::abs(objective - predicted) <= objective_tolerance;
+    if (!lowered || done.last_step <= tolerance || close_enough) break;
   }
   done.objective = objective;
   if (report != nullptr) *report = done;

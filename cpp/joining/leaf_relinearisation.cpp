@@ -235,7 +235,9 @@ double fit_leaf_poses(const LeafLog& log, const LeafWeights& weights, const Leaf
 }
 
 GaussianMap rebuild_leaf(const GaussianMap& map, const LeafLog& log, const LeafPoint& point,
-                         const std::vector<Vec3>& poses, const LeafModel& model) {
+                         const std::vector<Vec3>& poses, const LeafModel& model,
+                         double* innovation_distance_sq) {
+  double distance_sq = 0.0;
   const Index p = map.num_features();
   const Index slots = p;
   if (static_cast<Index>(point.features.size()) != p || poses.size() + 1 != std::max<std::size_t>(log.u.size(), 1)) {
@@ -325,6 +327,7 @@ GaussianMap rebuild_leaf(const GaussianMap& map, const LeafLog& log, const LeafP
       }
       cholesky.matrixU().solveInPlace<Eigen::OnTheRight>(PHt);  // W = P H' L^-T
       cholesky.matrixL().solveInPlace(nu);
+      distance_sq += nu.squaredNorm();
       y.head(active).noalias() += PHt * nu;
       auto P_active = P.topLeftCorner(active, active);
       P_active.selfadjointView<Eigen::Lower>().rankUpdate(PHt, -1.0);
@@ -373,6 +376,7 @@ GaussianMap rebuild_leaf(const GaussianMap& map, const LeafLog& log, const LeafP
   }
   rebuilt.x()(2) = wrap_angle(rebuilt.x()(2));
   rebuilt.ids() = map.ids();
+  if (innovation_distance_sq != nullptr) *innovation_distance_sq = distance_sq;
   return rebuilt;
 }
 

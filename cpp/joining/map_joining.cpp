@@ -156,11 +156,15 @@ std::int64_t MapJoin::step(std::int64_t budget) {
         update_->begin_factor();
         spent += join_cost::begin_factor(static_cast<std::int64_t>(pairs_.size()));
         phase_ = update_->factored() ? Phase::Solve : Phase::Factor;
+        if (update_->factored()) report_.constraint_distance_sq = update_->constraint_distance_sq();
       }
       break;
     case Phase::Factor:
       spent += update_->factor_next_panel();
-      if (update_->factored()) phase_ = Phase::Solve;
+      if (update_->factored()) {
+        report_.constraint_distance_sq = update_->constraint_distance_sq();
+        phase_ = Phase::Solve;
+      }
       break;
     case Phase::Solve:
       spent += update_->solve_next_rows();

@@ -209,7 +209,18 @@ class SlamConfig:
             (docs/divide_and_conquer.md, "Re-linearised joins through the tree"). 0
             (default): the paper's D&C, nothing kept; chosen by measurement: on Victoria Park
             one pass brings the map from 1.28 m to 0.012 m RMS of that optimum, but costs
-            about as much CPU again as the whole plain run (1.9x its total).
+            about as much CPU again as the whole plain run (1.9x its total). The passes may
+            stop before this many (``tree_relinearisation_tolerance``).
+        tree_relinearisation_tolerance: D&C: the re-linearisation passes stop early once a
+            pass, taken whole, predicts that another could lower the batch objective (a sum
+            of squared whitened residuals) by at most this much: its result's objective less
+            the minimum of the linearised problem it solved (``stats.counters``'
+            ``relinearisation_objective`` and ``relinearisation_predicted_objective``). The
+            map then lies within ``sqrt(tolerance)`` standard deviations of the optimum in
+            every direction. 3.84 (default; chi-square's 95 % point for one degree of
+            freedom), by measurement: one pass on Victoria Park, two on the iSAM file
+            (docs/divide_and_conquer.md, "When the passes stop"). 0: every pass, or until no
+            mean moves by more than 1e-9 (the optimum to rounding).
         seed: every random choice is reproducible from it.
         amortize: D&C spreads each join over the following steps (docs/design.md §5.3).
         threaded_joins: D&C runs joins on a background thread while mapping goes on
@@ -268,6 +279,7 @@ class SlamConfig:
     chunked_jcbb_min_overlap: int = 100
     join_rival_margin: Optional[int] = 3
     tree_relinearisation: int = 0
+    tree_relinearisation_tolerance: float = 3.841458820694124
     seed: int = 0
     amortize: bool = True
     threaded_joins: bool = False

@@ -132,6 +132,15 @@ def test_linear_gaussian_case_equals_batch_least_squares(kind, options):
     np.testing.assert_allclose(ekf_mean, expected_mean, rtol=1e-9, atol=1e-9 * np.abs(expected_mean).max())
     np.testing.assert_allclose(ekf_cov, expected_cov, rtol=1e-9, atol=1e-9 * np.abs(expected_cov).max())
     assert not est.covariance[2].any() and not est.covariance[:, 2].any()  # heading stays known
+    if options.get("tree_relinearisation"):
+        # Nothing is left to re-linearise: the minimum the pass's leaves' innovations and
+        # joins' constraints predicted, and its objective, are the batch problem's chi-square
+        # (the objective's pose fit weights the known heading by a floor variance of 1e-12).
+        residual = A @ solution - b
+        chi2 = float(residual @ W @ residual)
+        counters = slam.stats.counters
+        assert counters["relinearisation_predicted_objective"] == pytest.approx(chi2, rel=1e-9)
+        assert counters["relinearisation_objective"] == pytest.approx(chi2, rel=1e-8)
 
 
 # --- 5. step by step against a naive dense EKF --------------------------------------------

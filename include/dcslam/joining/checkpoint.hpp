@@ -19,7 +19,7 @@
 namespace dcslam {
 
 // Checkpoints from another version of this format are refused rather than misread.
-constexpr std::uint32_t kCheckpointVersion = 23;
+constexpr std::uint32_t kCheckpointVersion = 24;
 
 // InvalidArgument for a D&C filter with a join oracle (a research instrument) or a failed join.
 // Threaded D&C: taken under the stack's lock; the join the worker is running is saved as not

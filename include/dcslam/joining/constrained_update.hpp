@@ -56,6 +56,9 @@ class ConstrainedUpdate {
   void begin_factor();
   std::int64_t factor_next_panel();
   bool factored() const { return cholesky_.done(); }
+  // h' S^-1 h of the imposed pairs at the linearisation point, once factored(): what imposing
+  // them adds to the least-squares objective of the linearised problem.
+  double constraint_distance_sq() const { return whitened_h_.squaredNorm(); }
   std::int64_t solve_next_rows();
   Eigen::Index solve_rows_left() const { return gain_.rows() - next_solve_row_; }
   // The result (covariance not yet written) and the factors of the fill, once assembled.

@@ -57,6 +57,8 @@ struct JoinReport {
   int deferred_pairings = 0;
   int alternatives_taken = 0;  // inputs whose alternative this join took (0-2)
   int iterations = 0;  // linearisation points of the constraint update (0 when r = 0)
+  // h' S^-1 h of the imposed pairs at the last linearisation point (0 when r = 0).
+  double constraint_distance_sq = 0.0;
   double seconds_association = 0.0;
   double seconds_total = 0.0;  // summed over all the slices the join was run in
   std::int64_t work_units = 0;  // covariance elements written plus association/preparation

@@ -49,6 +49,9 @@ struct RelinearisationReport {
   // The batch objective (sum of squared whitened residuals) at the first point and at the end.
   double first_objective = 0.0;
   double objective = 0.0;
+  // The last pass's linearised problem at its minimum (the sum of its leaves' normalised
+  // innovations squared and its joins' h' S^-1 h): the objective it predicted for its step.
+  double predicted_objective = 0.0;
   int halvings = 0;  // step halvings of the line search, over all passes
 };
 
@@ -74,7 +77,11 @@ class JoinTree {
   //
   // Each pass is a Gauss–Newton step of the batch problem; its means are then taken a
   // fraction 1, 1/2, 1/4, ... of the way from the point it linearised at, the first that does
-  // not raise the batch objective (the covariance is the pass's). The joins pair features by
+  // not raise the batch objective (the covariance is the pass's). With `objective_tolerance`
+  // > 0, a pass taken whole also ends the passes when its objective differs from the minimum
+  // of the problem it linearised (the sum of its leaves' normalised innovations squared and
+  // its joins' h' S^-1 h: the prediction-error decomposition) by at most that much: the
+  // linearisation's error over the step, which measures what another pass could still gain. The joins pair features by
   // `final_id` (each leaf feature's id once every merge of the run is followed: the joins',
   // the fold's and the duplicate merge's; ids it maps to -1, dropped tentative features, keep
   // their own), so the pairs are those the run decided, each made at the lowest join where
@@ -86,7 +93,7 @@ class JoinTree {
   GaussianMap relinearise(const std::vector<TreeSpan>& stack, const GaussianMap& current, const LeafLog& open_log,
                           const std::function<std::int64_t(std::int64_t)>& final_id,
                           const GaussianMap& start, const JoinOptions& options, const LeafModel& model,
-                          int max_passes, double tolerance, int threads,
+                          int max_passes, double tolerance, double objective_tolerance, int threads,
                           RelinearisationReport* report = nullptr) const;
 
  private:

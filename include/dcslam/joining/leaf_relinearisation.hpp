@@ -89,8 +89,11 @@ double fit_leaf_poses(const LeafLog& log, const LeafWeights& weights, const Leaf
 // point (residual form, ⊖x_{t-1}⊕x_t - u and z - h(x_t, f), as the batch problem has them),
 // which gives the linearised least-squares problem's marginal over [end pose; features]
 // exactly. Zero variances (the first base, a known heading) stay zero, as in the EKF.
-// O(s n + m n^2) for n = 3 + 2p, the EKF's own order.
+// O(s n + m n^2) for n = 3 + 2p, the EKF's own order. `innovation_distance_sq`, if given, is
+// set to the sum of the filter's normalised innovations squared, nu' S^-1 nu: the minimum of
+// the leaf's linearised least-squares problem (the prediction-error decomposition).
 GaussianMap rebuild_leaf(const GaussianMap& map, const LeafLog& log, const LeafPoint& point,
-                         const std::vector<Vec3>& poses, const LeafModel& model);
+                         const std::vector<Vec3>& poses, const LeafModel& model,
+                         double* innovation_distance_sq = nullptr);
 
 }  // namespace dcslam
