@@ -715,6 +715,7 @@ TEST(JoinAssociation, TheJoinsOfADefaultConfigKeepTheJoinDefaults) {
   EXPECT_EQ(of_config.rjc.b, rjc_defaults.b);
   EXPECT_EQ(of_config.rjc.p_good, rjc_defaults.p_good);
   EXPECT_EQ(of_config.rjc.p_fail, rjc_defaults.p_fail);
+  EXPECT_EQ(of_config.rjc.exchange_crossed, rjc_defaults.exchange_crossed);
   EXPECT_EQ(of_config.large_overlap_confidence, join_defaults.large_overlap_confidence);
   EXPECT_EQ(of_config.chunked_jcbb_min_overlap, join_defaults.chunked_jcbb_min_overlap);
   EXPECT_EQ(of_config.max_iterations, join_defaults.max_iterations);
