@@ -102,6 +102,15 @@ ONLINE_LOCALISATION_OPTION = typer.Option(
     help="D&C: localise each closed local map against the oldest map where the robot's position std "
     "is at most this many metres, so that the online trajectory files know of places seen again "
     "(10 suited every scene measured; 'inf': always; default: off).")
+TREE_RELINEARISATION_OPTION = typer.Option(
+    None, "--tree-relinearisation", min=0, max=100,
+    help="D&C: at most this many re-linearisation passes through the tree of joins in the final estimate, "
+    "towards the batch least-squares optimum of the run's associations with its full covariance (default: "
+    "the dataset's, 0; 3 stops after one pass on Victoria Park, two on the iSAM file).")
+TREE_TOLERANCE_OPTION = typer.Option(
+    None, "--tree-relinearisation-tolerance", min=0.0,
+    help="D&C: the passes stop once another could lower the batch objective by at most this much "
+    "(default: SlamConfig's, 3.84; 0: every pass).")
 PROGRESS_OPTION = typer.Option(None, "--progress/--no-progress", help="Progress bar (default: on a terminal).")
 CHECKPOINT_OPTION = typer.Option(None, "--checkpoint", help="Save the run's state (every filter, every step "
                                  "so far) to this file every --checkpoint-interval steps and when the steps end, "
@@ -125,7 +134,8 @@ class _Saving(NamedTuple):
 
 
 def _config_with(cfg, association, join_association, local_map_features, join_iterations,
-                 keep_local_map_poses, online_localisation_sigma):
+                 keep_local_map_poses, online_localisation_sigma, tree_relinearisation=None,
+                 tree_relinearisation_tolerance=None):
     """The dataset's config with the command line's overrides."""
     from .config import SlamConfig
 
@@ -142,6 +152,10 @@ def _config_with(cfg, association, join_association, local_map_features, join_it
         values["keep_local_map_poses"] = True
     if online_localisation_sigma is not None:
         values["online_localisation_sigma"] = online_localisation_sigma
+    if tree_relinearisation is not None:
+        values["tree_relinearisation"] = tree_relinearisation
+    if tree_relinearisation_tolerance is not None:
+        values["tree_relinearisation_tolerance"] = tree_relinearisation_tolerance
     return SlamConfig.from_dict(values).validate()  # a bad value named here, not by the filter
 
 
@@ -428,6 +442,8 @@ def run_victoria_park(
     join_iterations: Optional[int] = JOIN_ITERATIONS_OPTION,
     keep_local_map_poses: bool = KEEP_POSES_OPTION,
     online_localisation_sigma: Optional[float] = ONLINE_LOCALISATION_OPTION,
+    tree_relinearisation: Optional[int] = TREE_RELINEARISATION_OPTION,
+    tree_relinearisation_tolerance: Optional[float] = TREE_TOLERANCE_OPTION,
     progress: Optional[bool] = PROGRESS_OPTION,
     checkpoint: Optional[Path] = CHECKPOINT_OPTION,
     checkpoint_interval: int = CHECKPOINT_INTERVAL_OPTION,
@@ -447,7 +463,8 @@ def run_victoria_park(
     try:
         dataset = victoria_park(data_dir)
         cfg = _config_with(dataset.slam_config(), association, join_association, local_map_features,
-                           join_iterations, keep_local_map_poses, online_localisation_sigma)
+                           join_iterations, keep_local_map_poses, online_localisation_sigma,
+                           tree_relinearisation, tree_relinearisation_tolerance)
     except ValueError as error:
         _fail(str(error))
     _run_dataset("Victoria Park", dataset.steps, cfg, filter, output, max_steps, plots, progress, gps=dataset.gps,
@@ -469,6 +486,8 @@ def run_isam(
     join_iterations: Optional[int] = JOIN_ITERATIONS_OPTION,
     keep_local_map_poses: bool = KEEP_POSES_OPTION,
     online_localisation_sigma: Optional[float] = ONLINE_LOCALISATION_OPTION,
+    tree_relinearisation: Optional[int] = TREE_RELINEARISATION_OPTION,
+    tree_relinearisation_tolerance: Optional[float] = TREE_TOLERANCE_OPTION,
     progress: Optional[bool] = PROGRESS_OPTION,
     checkpoint: Optional[Path] = CHECKPOINT_OPTION,
     checkpoint_interval: int = CHECKPOINT_INTERVAL_OPTION,
@@ -485,7 +504,8 @@ def run_isam(
     try:
         dataset = read_isam2d(file)
         cfg = _config_with(dataset.slam_config(), association, join_association, local_map_features,
-                           join_iterations, keep_local_map_poses, online_localisation_sigma)
+                           join_iterations, keep_local_map_poses, online_localisation_sigma,
+                           tree_relinearisation, tree_relinearisation_tolerance)
     except ValueError as error:
         _fail(str(error))
     _run_dataset(file.name, dataset.steps, cfg, filter, output, max_steps, plots, progress,
@@ -510,6 +530,8 @@ def run_mrclam(
     checkpoint_every: int = typer.Option(10, "--checkpoint-every", min=1, help="Take the full estimate every N "
                                          "steps for the robot's NEES over time."),
     online_localisation_sigma: Optional[float] = ONLINE_LOCALISATION_OPTION,
+    tree_relinearisation: Optional[int] = TREE_RELINEARISATION_OPTION,
+    tree_relinearisation_tolerance: Optional[float] = TREE_TOLERANCE_OPTION,
     progress: Optional[bool] = PROGRESS_OPTION,
     checkpoint: Optional[Path] = CHECKPOINT_OPTION,
     checkpoint_interval: int = CHECKPOINT_INTERVAL_OPTION,
@@ -530,7 +552,7 @@ def run_mrclam(
         if association is not None and association is not AssociationChoice.known and join_association is None:
             join_association = JoinAssociationChoice.rjc
         cfg = _config_with(cfg, association, join_association, local_map_features, join_iterations, False,
-                           online_localisation_sigma)
+                           online_localisation_sigma, tree_relinearisation, tree_relinearisation_tolerance)
     except ValueError as error:
         _fail(str(error))
     _run_dataset(f"MR.CLAM robot {robot}", dataset.steps, cfg, filter, output, max_steps, plots, progress,

@@ -116,3 +116,25 @@ def test_a_broken_file_is_one_short_line(tmp_path):
     out = run("run", "isam", str(path), "--output", str(tmp_path / "out"), "--no-progress")
     assert out.returncode == 2 and "Traceback" not in out.stdout + out.stderr
     assert "graph.txt:1: field 'dx'" in " ".join(out.stdout.split()) and len(out.stdout) < 600
+
+
+def test_run_isam_relinearises_the_tree_on_request(tmp_path):
+    """--tree-relinearisation reaches the filter: the passes run and stop by the tolerance,
+    and the final map is the optimum's (with an unreachable tolerance, one pass only)."""
+    args = ("run", "isam", str(ISAM_FILE), "--max-steps", "2000", "--filter", "dc", "--no-plots", "--no-progress")
+    out = run(*args, "--output", str(tmp_path / "stopped"), "--tree-relinearisation", "5")
+    assert out.returncode == 0, out.stdout + out.stderr
+    stopped = json.loads((tmp_path / "stopped" / "stats_dc.json").read_text())
+    assert stopped["config"]["tree_relinearisation"] == 5
+    counters = stopped["counters"]
+    assert 2 <= counters["relinearisation_passes"] < 5
+    assert abs(counters["relinearisation_objective"] - counters["relinearisation_predicted_objective"]) <= 3.85
+    out = run(*args, "--output", str(tmp_path / "one"), "--tree-relinearisation", "5",
+              "--tree-relinearisation-tolerance", "1e9")
+    assert out.returncode == 0, out.stdout + out.stderr
+    one = json.loads((tmp_path / "one" / "stats_dc.json").read_text())
+    assert one["config"]["tree_relinearisation_tolerance"] == 1e9
+    assert one["counters"]["relinearisation_passes"] == 1
+    assert one["counters"]["relinearisation_objective"] > counters["relinearisation_objective"]
+    out = run(*args, "--output", str(tmp_path / "bad"), "--tree-relinearisation", "101")
+    assert out.returncode != 0 and "--tree-relinearisation" in out.stdout + out.stderr
