@@ -108,11 +108,13 @@ GaussianMap select(const JoinedOrder& order, const Eigen::VectorXd& y, const Eig
 // with the full Jacobian, impose the matched pairs with an EKF update (S = H P H', no R), then
 // keep the rows joined_order() lists (marginalising = deleting rows and columns of the
 // updated P): R1 goes unless kept, so do the matched f'_j and the dropped tentative features.
+// `constraint_distance_sq`, if given, gets h' S^-1 h of the pairs (h = H z at the prior means).
 GaussianMap dense_join(const GaussianMap& m1, const GaussianMap& m2,
                        const std::vector<std::pair<Index, Index>>& pairs,
                        const std::set<Index>& dropped_first = {},
                        const std::set<Index>& dropped_second = {},
-                       bool keep_first_robot = false, std::int64_t first_robot_id = -1) {
+                       bool keep_first_robot = false, std::int64_t first_robot_id = -1,
+                       double* constraint_distance_sq = nullptr) {
   const Index d1 = m1.dim(), d2 = m2.dim(), D = d1 + d2;
   const Vec3 T = m1.robot();
   Eigen::VectorXd z(D);
@@ -147,6 +149,10 @@ GaussianMap dense_join(const GaussianMap& m1, const GaussianMap& m2,
       H.block<2, 2>(2 * k, d1 + 3 + 2 * pairs[k].second) = -Mat2::Identity();
     }
     const Eigen::MatrixXd S = H * P * H.transpose();
+    if (constraint_distance_sq != nullptr) {
+      const Eigen::VectorXd h = H * z;
+      *constraint_distance_sq = h.dot(S.inverse() * h);
+    }
     const Eigen::MatrixXd K = P * H.transpose() * S.inverse();
     z -= K * (H * z);
     P -= K * S * K.transpose();
@@ -195,7 +201,14 @@ TEST_P(MapJoiningTest, FusedJoinEqualsDenseTextbookJoin) {
   EXPECT_EQ(static_cast<int>(pairs.size()), c.shared);
   EXPECT_EQ(report.pairings, c.shared);
   EXPECT_EQ(report.iterations, c.shared > 0 ? 1 : 0);
-  expect_maps_equal(joined, dense_join(m1, m2, pairs), 1e-9);
+  double constraint_distance_sq = 0.0;
+  expect_maps_equal(joined, dense_join(m1, m2, pairs, {}, {}, false, -1, &constraint_distance_sq), 1e-9);
+  // What imposing the pairs adds to the linearised least-squares objective (the
+  // re-linearisation passes sum it, join_tree.hpp).
+  EXPECT_NEAR(report.constraint_distance_sq, constraint_distance_sq, 1e-9 * std::max(1.0, constraint_distance_sq));
+  if (c.shared > 0) {
+    EXPECT_GT(constraint_distance_sq, 0.0);
+  }
   EXPECT_TRUE(joined.P().isApprox(joined.P().transpose(), 1e-12));
   if (c.shared == 0) {  // no constraint, nothing to re-linearise: the same join
     options.max_iterations = 10;
