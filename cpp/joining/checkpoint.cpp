@@ -486,6 +486,7 @@ void save_event(Writer& out, const JoinEvent& e) {
   out.pod(r.deferred_pairings);
   out.pod(r.alternatives_taken);
   out.pod(r.iterations);
+  out.pod(r.constraint_distance_sq);
   out.pod(r.seconds_association);
   out.pod(r.seconds_total);
   out.pod(r.work_units);
@@ -511,6 +512,7 @@ JoinEvent load_event(Reader& in) {
   r.deferred_pairings = in.pod<int>();
   r.alternatives_taken = in.pod<int>();
   r.iterations = in.pod<int>();
+  r.constraint_distance_sq = in.pod<double>();
   r.seconds_association = in.pod<double>();
   r.seconds_total = in.pod<double>();
   r.work_units = in.pod<std::int64_t>();
