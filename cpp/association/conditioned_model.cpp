@@ -13,6 +13,16 @@ std::uint64_t key_of(const Pairing& pairing) {
          static_cast<std::uint32_t>(pairing.feature);
 }
 
+// The gate test of a conditioned pairing: its covariance's factor and its whitened innovation,
+// false when the covariance is not positive definite or the innovation lies outside `gate`.
+bool whitened_within(const Mat2& covariance, const Vec2& innovation, double gate, Eigen::LLT<Mat2>& factor,
+                     Vec2& whitened) {
+  factor.compute(covariance);
+  if (factor.info() != Eigen::Success) return false;
+  whitened = factor.matrixL().solve(innovation);
+  return whitened.squaredNorm() <= gate;
+}
+
 }  // namespace
 
 ConditionedPairingModel::ConditionedPairingModel(const PairingModel& base, Eigen::Index expected_pairings)
@@ -102,12 +112,12 @@ void ConditionedPairingModel::reserve_factor(Eigen::Index rows) {
   whitened_.conservativeResize(size);
 }
 
-void ConditionedPairingModel::keep(const Pairing& pairing, const Eigen::LLT<Mat2>& factor, const Vec2& innovation) {
+void ConditionedPairingModel::keep(const Pairing& pairing, const Eigen::LLT<Mat2>& factor, const Vec2& whitened) {
   const auto m = static_cast<Eigen::Index>(kept_.size());
   reserve_factor(2 * m + 2);
   lower_.block(2 * m, 0, 2, 2 * m) = cross_.topRows(2 * m).transpose();
   lower_.block<2, 2>(2 * m, 2 * m) = factor.matrixL();
-  whitened_.segment<2>(2 * m) = factor.matrixL().solve(innovation);
+  whitened_.segment<2>(2 * m) = whitened;
   kept_.push_back(pairing);
   cache_.clear();
 }
@@ -116,9 +126,10 @@ bool ConditionedPairingModel::keep_if_within(const Pairing& pairing, double gate
   Vec2 innovation;
   Mat2 covariance;
   condition(pairing, innovation, covariance);
-  const Eigen::LLT<Mat2> factor(covariance);
-  if (factor.info() != Eigen::Success || factor.matrixL().solve(innovation).squaredNorm() > gate) return false;
-  keep(pairing, factor, innovation);
+  Eigen::LLT<Mat2> factor;
+  Vec2 whitened;
+  if (!whitened_within(covariance, innovation, gate, factor, whitened)) return false;
+  keep(pairing, factor, whitened);
   return true;
 }
 
@@ -163,9 +174,9 @@ std::size_t ConditionedPairingModel::keep_each_within(const std::vector<Pairing>
       innovation -= cross_taken.transpose().lazyProduct(panel_whitened_.head(2 * t));
       covariance -= cross_taken.transpose().lazyProduct(cross_taken);
     }
-    const Eigen::LLT<Mat2> factor(covariance);
-    const Vec2 whitened = factor.matrixL().solve(innovation);
-    if (factor.info() != Eigen::Success || whitened.squaredNorm() > gates[static_cast<std::size_t>(p)]) {
+    Eigen::LLT<Mat2> factor;
+    Vec2 whitened;
+    if (!whitened_within(covariance, innovation, gates[static_cast<std::size_t>(p)], factor, whitened)) {
       ++rejections;
       continue;
     }

@@ -74,9 +74,9 @@ class ConditionedPairingModel : public PairingModel {
   void write_cross(const Pairing& pairing, CrossColumns cross) const;
   // nu_a|K and C_aa|K of `pairing`, leaving its w_a in cross_ for keep().
   void condition(const Pairing& pairing, Vec2& innovation, Mat2& covariance);
-  // Adds the pairing last passed to condition() to K, given the factor of its conditional
-  // covariance and its conditional innovation.
-  void keep(const Pairing& pairing, const Eigen::LLT<Mat2>& factor, const Vec2& innovation);
+  // Adds the pairing last passed to condition() to K, given the factor L_a of its conditional
+  // covariance and its conditional innovation whitened, L_a^-1 nu_a|K.
+  void keep(const Pairing& pairing, const Eigen::LLT<Mat2>& factor, const Vec2& whitened);
   // Grows L's and L^-1 nu_K's storage to at least `rows` rows, keeping their contents.
   void reserve_factor(Eigen::Index rows);
   // Writes L^-1 C_Ka into `cross` (2|K| x 2).
