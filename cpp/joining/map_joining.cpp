@@ -156,15 +156,11 @@ std::int64_t MapJoin::step(std::int64_t budget) {
         update_->begin_factor();
         spent += join_cost::begin_factor(static_cast<std::int64_t>(pairs_.size()));
         phase_ = update_->factored() ? Phase::Solve : Phase::Factor;
-        if (update_->factored()) report_.constraint_distance_sq = update_->constraint_distance_sq();
       }
       break;
     case Phase::Factor:
       spent += update_->factor_next_panel();
-      if (update_->factored()) {
-        report_.constraint_distance_sq = update_->constraint_distance_sq();
-        phase_ = Phase::Solve;
-      }
+      if (update_->factored()) phase_ = Phase::Solve;
       break;
     case Phase::Solve:
       spent += update_->solve_next_rows();
@@ -174,6 +170,7 @@ std::int64_t MapJoin::step(std::int64_t budget) {
       if (!update_->assembling()) {
         update_->begin_assemble();
         report_.features_joined = update_->result().num_features();
+        report_.constraint_distance_sq = update_->constraint_distance_sq();
       }
       spent += update_->assemble_next_rows();
       if (update_->assembled()) {

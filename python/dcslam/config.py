@@ -155,8 +155,8 @@ class SlamConfig:
             are otherwise often paired crosswise. True (default) by measurement: D&C's recall
             without ids as high or higher on every simulated scene (lawn_overlap 0.938 ->
             0.940, the snail 0.931 -> 0.937, long_revisits 0.932 -> 0.942 over three RJC
-            draws), Victoria Park's map as before (docs/data_association.md, "Crossed
-            pairings exchanged"). False: each try's greedy hypothesis as it is.
+            draws), Victoria Park's map 401 landmarks instead of 402 (docs/data_association.md,
+            "Crossed pairings exchanged"). False: each try's greedy hypothesis as it is.
         join_iterations: D&C: linearisation points of each join's constraint update (>= 1).
             The join re-linearises the move of the second map into the first's frame at the
             constrained estimate until it stops moving (an iterated EKF); 1 linearises once,
@@ -208,7 +208,7 @@ class SlamConfig:
             the run's own associations (every pose and landmark) with its full covariance
             (docs/divide_and_conquer.md, "Re-linearised joins through the tree"). 0
             (default): the paper's D&C, nothing kept; chosen by measurement: on Victoria Park
-            one pass brings the map from 1.28 m to 0.012 m RMS of that optimum, but costs
+            one pass brings the map from 1.62 m to 0.019 m RMS of that optimum, but costs
             about as much CPU again as the whole plain run (1.9x its total). The passes may
             stop before this many (``tree_relinearisation_tolerance``).
         tree_relinearisation_tolerance: D&C: the re-linearisation passes stop early once a

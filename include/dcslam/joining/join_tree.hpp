@@ -81,11 +81,11 @@ class JoinTree {
   // > 0, a pass taken whole also ends the passes when its objective differs from the minimum
   // of the problem it linearised (the sum of its leaves' normalised innovations squared and
   // its joins' h' S^-1 h: the prediction-error decomposition) by at most that much: the
-  // linearisation's error over the step, which measures what another pass could still gain. The joins pair features by
-  // `final_id` (each leaf feature's id once every merge of the run is followed: the joins',
-  // the fold's and the duplicate merge's; ids it maps to -1, dropped tentative features, keep
-  // their own), so the pairs are those the run decided, each made at the lowest join where
-  // its two features meet. `options` gives the constraint update's settings; association,
+  // linearisation's error over the step, which measures what another pass could still gain.
+  // The joins pair features by `final_id` (each leaf feature's id once every merge of the run
+  // is followed: the joins', the fold's and the duplicate merge's; ids it maps to -1, dropped
+  // tentative features, keep their own), so the pairs are those the run decided, each made at
+  // the lowest join where its two features meet. `options` gives the constraint update's settings; association,
   // linearisation and the past poses are set here. The result keeps every local-map boundary
   // as a past pose (the linearisation points need them). The leaves' fits and rebuilds and the
   // joins of disjoint subtrees run side by side on up to `threads` threads (>= 1), with the
